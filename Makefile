@@ -1,0 +1,40 @@
+# btfvq: the two commands a new user needs are `make demo` and `make test`.
+# Every target installs what is missing first (Debian packages; needs root or sudo).
+
+BUILD      ?= build
+BUILD_REL  ?= build-release
+JOBS       ?= $(shell nproc)
+DEB_PACKAGES = build-essential cmake pkg-config git ca-certificates \
+  pocl-opencl-icd opencl-c-headers opencl-clhpp-headers ocl-icd-opencl-dev clinfo \
+  libopenimageio-dev openimageio-tools libspdlog-dev nlohmann-json3-dev libcpp-httplib-dev doctest-dev \
+  libsqlite3-dev libarchive-dev libeigen3-dev libzstd-dev libssl-dev zip unzip curl python3
+
+.PHONY: deps build build-release test demo bench clean install
+
+deps:
+	@bash scripts/install-deps.sh $(DEB_PACKAGES)
+
+$(BUILD)/CMakeCache.txt:
+	cmake -S . -B $(BUILD) -DCMAKE_BUILD_TYPE=RelWithDebInfo -DBTFVQ_WERROR=ON
+
+build: deps $(BUILD)/CMakeCache.txt
+	cmake --build $(BUILD) -j $(JOBS)
+
+build-release: deps
+	cmake -S . -B $(BUILD_REL) -DCMAKE_BUILD_TYPE=Release -DBTFVQ_NATIVE=ON -DBTFVQ_WERROR=OFF -DBTFVQ_TESTS=OFF
+	cmake --build $(BUILD_REL) -j $(JOBS)
+
+test: build
+	cd $(BUILD) && ctest --output-on-failure -j $(JOBS) --timeout 900
+
+demo: build
+	@bash scripts/demo.sh $(BUILD)/bin
+
+bench: build-release
+	@bash bench/run.sh $(BUILD_REL)/bin
+
+install: build-release
+	cmake --install $(BUILD_REL)
+
+clean:
+	rm -rf $(BUILD) $(BUILD_REL)

@@ -1,0 +1,52 @@
+#include "support/test_paths.h"
+
+#include <unistd.h>
+
+#include <array>
+#include <cstdio>
+#include <cstdlib>
+#include <sys/wait.h>
+
+namespace btfvq::test {
+
+namespace fs = std::filesystem;
+
+fs::path testdata_dir() { return fs::path(BTFVQ_TESTDATA_DIR); }
+fs::path source_dir() { return fs::path(BTFVQ_SOURCE_DIR); }
+fs::path bin_dir() { return fs::path(BTFVQ_BIN_DIR); }
+
+namespace {
+struct ScratchRoot {
+  fs::path path;
+  ScratchRoot() {
+    path = fs::temp_directory_path() / ("btfvq-test-" + std::to_string(::getpid()));
+    fs::create_directories(path);
+  }
+  ~ScratchRoot() {
+    std::error_code ec;
+    fs::remove_all(path, ec);
+  }
+};
+}  // namespace
+
+fs::path scratch_dir(const std::string& name) {
+  static ScratchRoot root;
+  fs::path p = root.path / name;
+  fs::remove_all(p);
+  fs::create_directories(p);
+  return p;
+}
+
+int run_command(const std::string& command, std::string* output) {
+  FILE* pipe = ::popen((command + " 2>&1").c_str(), "r");
+  if (!pipe) return -1;
+  std::array<char, 4096> buffer{};
+  std::string out;
+  size_t n;
+  while ((n = std::fread(buffer.data(), 1, buffer.size(), pipe)) > 0) out.append(buffer.data(), n);
+  const int status = ::pclose(pipe);
+  if (output) *output = out;
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+}  // namespace btfvq::test

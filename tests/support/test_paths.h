@@ -1,0 +1,17 @@
+#pragma once
+// Where tests find the outside test data, the built binaries, and a scratch directory.
+#include <filesystem>
+#include <string>
+
+namespace btfvq::test {
+
+std::filesystem::path testdata_dir();   // ../shared/testdata
+std::filesystem::path source_dir();     // the repository root
+std::filesystem::path bin_dir();        // build/bin (btfvq, btfvq-server)
+// A fresh, empty directory unique to this test process and `name`; removed when the process ends.
+std::filesystem::path scratch_dir(const std::string& name);
+
+// Runs a shell command, returns its exit status; stdout+stderr go to `output` when given.
+int run_command(const std::string& command, std::string* output = nullptr);
+
+}  // namespace btfvq::test
