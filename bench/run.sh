@@ -1,0 +1,19 @@
+#!/usr/bin/env bash
+# Runs every benchmark program and rewrites BENCHMARKS.md and bench/results/latest.json.
+# Usage: bash bench/run.sh BIN_DIR   (make bench builds a -O3 -march=native release first)
+set -euo pipefail
+bin=${1:-build-release/bin}
+root=$(cd "$(dirname "$0")/.." && pwd)
+work=$(mktemp -d /tmp/btfvq-bench.XXXXXX)
+trap 'rm -rf "$work"' EXIT
+mkdir -p "$root/bench/results"
+for b in "$bin"/bench_*; do
+  [ -x "$b" ] || continue
+  name=$(basename "$b")
+  echo "== $name" >&2
+  "$b" --json "$work/$name.json" --scratch "$work/$name.scratch" --testdata "$root/../shared/testdata" \
+       --figures "$root/bench/results" >&2
+done
+python3 "$root/bench/report.py" --results "$work" --out "$root/BENCHMARKS.md" --json "$root/bench/results/latest.json" \
+  --command "make bench"
+echo "wrote BENCHMARKS.md and bench/results/latest.json" >&2
