@@ -53,7 +53,7 @@ __kernel void decode_batch(__global const float* p1, __global const float* c, __
   out[q * 3 + 2] = 0.0f;
   const real theta_i = angles[q * 4 + 0], phi_i = angles[q * 4 + 1];
   const real theta_v = angles[q * 4 + 2], phi_v = angles[q * 4 + 3];
-  if (theta_i > (real)90 || theta_v > (real)90) return;
+  if (!(theta_i <= (real)90 && theta_v <= (real)90) || !isfinite(phi_i) || !isfinite(phi_v)) return;
 
   // P6: texel indices wrap modulo the material size; -1 = not compressed.
   const int mat = texels[q * 4 + 0];
@@ -68,13 +68,12 @@ __kernel void decode_batch(__global const float* p1, __global const float* c, __
 
   // Onion angles of the light for this view azimuth.
   const real p = wrap360(phi_i - phi_v - (real)90) * DEG, t = theta_i * DEG;
-  const real lx = cos(p) * sin(t), ly = sin(p) * sin(t);
-  const real beta = asin_deg(lx);
-  const real cbeta = cos(beta * DEG);
+  const real sb = clamp(cos(p) * sin(t), (real)-1, (real)1), ly = sin(p) * sin(t);
+  const real beta = asin_deg(sb);
+  const real cbeta = sqrt((real)1 - sb * sb);  // cos(beta), as Decoder::evaluate computes it
   const real alpha = cbeta > 0 ? asin_deg(ly / cbeta) : (real)0;
 
   // Cells.
-  const real sb = sin(beta * DEG);
   const int bi = clamp((int)floor((sb + (real)1) / (real)2 * (real)(nb - 1)), 0, nb - 2);
   const real b0 = beta_node(bi, nb), b1 = beta_node(bi + 1, nb);
   const real bw = clamp((beta - b0) / (b1 - b0), (real)0, (real)1);

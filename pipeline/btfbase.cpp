@@ -271,6 +271,9 @@ MaterialInfo read_material_info(const fs::path& dir) {
                          ": a material line is 'name inPath outPath tmpPath rowOffset colOffset rows cols hdrValue'");
     MaterialLine m;
     m.name = t[0];
+    if (m.name == "all" || m.name.find_first_of("/\\") != std::string::npos)
+      throw CorruptError(std::string(kInfo) + " line " + std::to_string(l) + ": material name '" + m.name +
+                         "' is not a plain file-name prefix");
     m.rows = info_number<int>(t[6], l, "rows");
     m.cols = info_number<int>(t[7], l, "cols");
     m.hdr_value = info_number<double>(t[8], l, "hdrValue");

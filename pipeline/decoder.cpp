@@ -76,7 +76,8 @@ void Decoder::check_material(size_t material) const {
 
 Rgb Decoder::evaluate(size_t material, int x, int y, const Direction& light, const Direction& view) const {
   check_material(material);
-  if (light.theta > 90.0 || view.theta > 90.0) return {};
+  // Zero below the horizon; written so that NaN angles also decode to zero.
+  if (!(light.theta <= 90.0 && view.theta <= 90.0) || !std::isfinite(light.phi) || !std::isfinite(view.phi)) return {};
   const Material& mat = db_.materials[material];
   const size_t texel = size_t(wrap(y, mat.height)) * size_t(mat.width) + size_t(wrap(x, mat.width));
   const int32_t p4_row = mat.p6_index[texel];
@@ -84,9 +85,13 @@ Rgb Decoder::evaluate(size_t material, int x, int y, const Direction& light, con
   const bool hdr = mat.dynamic == Dynamic::HDR;
   const AngularGrid& grid = db_.codebooks.grid;
 
-  // Steps 1-3: onion angles of the light for this view azimuth, and the four interpolation cells.
-  const OnionAngles onion = to_onion(light, view.phi);
-  const double sb = std::sin(onion.beta * kDeg);
+  // Steps 1-3: onion angles of the light for this view azimuth (to_onion of parametrization.h, with
+  // sin(beta) = x and cos(beta) = sqrt(1 - x^2) instead of two more trigonometric calls), and the
+  // four interpolation cells.
+  const double phi = relative_light_azimuth(light.phi, view.phi) * kDeg, sin_t = std::sin(light.theta * kDeg);
+  const double sb = std::clamp(std::cos(phi) * sin_t, -1.0, 1.0), ly = std::sin(phi) * sin_t;
+  const double cos_b = std::sqrt(1.0 - sb * sb);
+  const OnionAngles onion{cos_b > 0 ? std::asin(std::clamp(ly / cos_b, -1.0, 1.0)) / kDeg : 0.0, std::asin(sb) / kDeg};
   const int bi = std::clamp(int(std::floor((sb + 1.0) / 2.0 * (nb_ - 1))), 0, nb_ - 2);
   const double bw = std::clamp((onion.beta - beta_nodes_[size_t(bi)]) / (beta_nodes_[size_t(bi) + 1] - beta_nodes_[size_t(bi)]), 0.0, 1.0);
   const Cell ac = grid.alpha_cell(onion.alpha);

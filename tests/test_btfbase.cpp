@@ -254,6 +254,17 @@ TEST_CASE("a code-book size in all_materialInfo.txt that disagrees with its file
   CHECK_MESSAGE(contains(msg, "all_PDF1Dslice.txt"), msg);
 }
 
+TEST_CASE("a material name that would leave the directory is refused") {
+  const fs::path dir = alu_copy("name");
+  std::string info = slurp(dir / "all_materialInfo.txt");
+  const auto at = info.rfind("alu ./indata");
+  REQUIRE(at != std::string::npos);
+  info.replace(at, 3, "../x");
+  spit(dir / "all_materialInfo.txt", info);
+  const std::string msg = error_of<CorruptError>(dir);
+  CHECK_MESSAGE(contains(msg, "all_materialInfo.txt line 15"), msg);
+}
+
 TEST_CASE("proposte (8 MB of text) imports quickly") {
   const auto start = std::chrono::steady_clock::now();
   const Database db = import_btfbase(proposte_dir().string());

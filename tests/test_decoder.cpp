@@ -99,6 +99,10 @@ TEST_CASE("directions below the horizon, wrapped texels and uncompressed texels"
   CHECK(inside.r > 1.0f);
   const Rgb below_light = dec.evaluate(0, 10, 20, {90.5, 90}, {0, 0});
   const Rgb below_view = dec.evaluate(0, 10, 20, {60, 90}, {91, 0});
+  const Rgb nan_light = dec.evaluate(0, 10, 20, {std::nan(""), 90}, {0, 0});
+  const Rgb nan_phi = dec.evaluate(0, 10, 20, {60, 90}, {10, std::nan("")});
+  CHECK(nan_light.r == 0.0f);
+  CHECK(nan_phi.g == 0.0f);
   CHECK(below_light.r == 0.0f);
   CHECK(below_light.g == 0.0f);
   CHECK(below_view.b == 0.0f);
