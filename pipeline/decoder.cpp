@@ -40,6 +40,7 @@ int wrap(int v, int n) {
 }  // namespace
 
 struct Decoder::DeviceBuffers {
+  cl::Context context;  // the buffers belong to it; a reconfigured device has a new one
   cl::Buffer p1, c, i1, i2, p2_index, p2_scale, m, p3_index, p3_scale, p4_index, p4_scale;
   cl::Buffer p6_index, p6_scale, materials;
 };
@@ -173,11 +174,13 @@ cl::Buffer upload_nonempty(ComputeDevice& dev, const std::vector<T>& v) {
 
 Decoder::DeviceBuffers& Decoder::device_buffers() const {
   std::lock_guard<std::mutex> lock(device_mutex_);
-  if (device_) return *device_;
   auto& dev = ComputeDevice::get();
+  // The held buffers keep their context alive, so a new device cannot reuse its handle.
+  if (device_ && device_->context() == dev.context()()) return *device_;
   const Codebooks& k = db_.codebooks;
   auto bufs = std::make_unique<DeviceBuffers>();
   opencl_call("uploading the code-books for decoding", [&] {
+    bufs->context = dev.context();
     bufs->p1 = upload_nonempty(dev, k.p1.data());
     bufs->c = upload_nonempty(dev, k.c.data());
     bufs->i1 = upload_nonempty(dev, k.i1.data());

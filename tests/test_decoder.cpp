@@ -197,6 +197,23 @@ TEST_CASE("the OpenCL batch decoder agrees with the reference on proposte") {
   CHECK(mismatches == 0);
 }
 
+TEST_CASE("decode() follows the configured device, and a reconfigured device gets fresh buffers") {
+  const Decoder dec(alu());
+  const auto queries = random_queries(alu(), 500, 3);
+  ComputeDevice::configure("auto");
+  REQUIRE(ComputeDevice::get().uses_opencl());
+  const auto first = dec.decode_opencl(queries);
+  ComputeDevice::configure("cpu-reference");
+  const auto ref = dec.decode(queries);
+  const auto expect = dec.decode_reference(queries);
+  for (size_t i = 0; i < queries.size(); ++i) CHECK(ref[i].r == expect[i].r);
+  CHECK_THROWS_AS(dec.decode_opencl(queries), DeviceError);
+  ComputeDevice::configure("auto");
+  REQUIRE(ComputeDevice::get().uses_opencl());
+  const auto second = dec.decode(queries);  // new context: the code-books are uploaded again
+  for (size_t i = 0; i < queries.size(); ++i) CHECK(second[i].g == first[i].g);
+}
+
 TEST_CASE("single-query evaluation is fast enough for a renderer") {
   const Decoder dec(proposte());
   const auto queries = random_queries(proposte(), 1 << 16, 7);
