@@ -59,6 +59,7 @@ __kernel void decode_batch(__global const float* p1, __global const float* c, __
   const int mat = texels[q * 4 + 0];
   const int offset = materials[mat * 4 + 0], width = materials[mat * 4 + 1], height = materials[mat * 4 + 2];
   const int hdr = materials[mat * 4 + 3];
+  if (width <= 0 || height <= 0) return;
   int x = texels[q * 4 + 1] % width, y = texels[q * 4 + 2] % height;
   if (x < 0) x += width;
   if (y < 0) y += height;

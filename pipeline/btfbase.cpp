@@ -366,9 +366,17 @@ void write_matrix(const fs::path& path, size_t rows, size_t cols, const T* data,
   if (!f) throw InputError("cannot write " + path.string());
 }
 
+// An empty, default-constructed table has no columns yet; the file still declares the grid's.
 template <class T>
-void write_table(const fs::path& dir, const char* file, const Table<T>& t) {
-  write_matrix(dir / file, t.rows(), t.cols(), t.data().data());
+void write_table(const fs::path& dir, const char* file, const Table<T>& t, int cols) {
+  write_matrix(dir / file, t.rows(), t.rows() ? t.cols() : size_t(cols), t.data().data());
+}
+
+template <class T>
+void check_table_cols(const Table<T>& t, int cols, const char* name) {
+  if (t.rows() > 0 && t.cols() != size_t(cols))
+    throw InputError(std::string("code-book ") + name + " has " + std::to_string(t.cols()) + " columns, the grid needs " +
+                     std::to_string(cols));
 }
 
 void write_text(const fs::path& path, const std::string& text) {
@@ -384,7 +392,23 @@ std::string material_line(const Material& m) {
 }
 
 void check_exportable(const Database& db) {
-  db.codebooks.grid.validate();
+  const Codebooks& k = db.codebooks;
+  const AngularGrid& g = k.grid;
+  g.validate();
+  check_table_cols(k.p1, g.n_beta, "P1");
+  check_table_cols(k.c, 2, "C");
+  check_table_cols(k.i1, g.n_beta, "I1");
+  check_table_cols(k.i2, g.n_alpha, "I2");
+  check_table_cols(k.p2_index, g.n_alpha, "P2");
+  check_table_cols(k.p2_scale, g.n_alpha, "P2 scale");
+  check_table_cols(k.m, 2, "M");
+  check_table_cols(k.p3_index, g.n_theta_v, "P3");
+  check_table_cols(k.p3_scale, g.n_theta_v, "P3 scale");
+  check_table_cols(k.p4_index, g.n_phi_v, "P4");
+  check_table_cols(k.p4_scale, g.n_phi_v, "P4 scale");
+  if (k.p2_scale.rows() != k.p2_index.rows() || k.p3_scale.rows() != k.p3_index.rows() ||
+      k.p4_scale.rows() != k.p4_index.rows())
+    throw InputError("code-book index and scale tables of P2, P3 or P4 differ in length");
   db.validate();
   for (size_t i = 0; i < db.materials.size(); ++i) {
     const std::string& n = db.materials[i].name;
@@ -398,17 +422,17 @@ void check_exportable(const Database& db) {
 void write_all(const Database& db, const fs::path& dir, const std::string& base) {
   const Codebooks& k = db.codebooks;
   const AngularGrid& g = k.grid;
-  write_table(dir, "all_PDF1Dslice.txt", k.p1);
-  write_table(dir, "all_colors.txt", k.c);
-  write_table(dir, "all_indexAB.txt", k.i1);
-  write_table(dir, "all_PDF2Dcolours.txt", k.i2);
-  write_table(dir, "all_PDF2Dslices.txt", k.p2_index);
-  write_table(dir, "all_PDF2Dscale.txt", k.p2_scale);
-  write_table(dir, "all_PDF2Dindices.txt", k.m);
-  write_table(dir, "all_PDF3Dslices.txt", k.p3_index);
-  write_table(dir, "all_PDF3Dscale.txt", k.p3_scale);
-  write_table(dir, "all_PDF4Dslices.txt", k.p4_index);
-  write_table(dir, "all_PDF4Dscale.txt", k.p4_scale);
+  write_table(dir, "all_PDF1Dslice.txt", k.p1, g.n_beta);
+  write_table(dir, "all_colors.txt", k.c, 2);
+  write_table(dir, "all_indexAB.txt", k.i1, g.n_beta);
+  write_table(dir, "all_PDF2Dcolours.txt", k.i2, g.n_alpha);
+  write_table(dir, "all_PDF2Dslices.txt", k.p2_index, g.n_alpha);
+  write_table(dir, "all_PDF2Dscale.txt", k.p2_scale, g.n_alpha);
+  write_table(dir, "all_PDF2Dindices.txt", k.m, 2);
+  write_table(dir, "all_PDF3Dslices.txt", k.p3_index, g.n_theta_v);
+  write_table(dir, "all_PDF3Dscale.txt", k.p3_scale, g.n_theta_v);
+  write_table(dir, "all_PDF4Dslices.txt", k.p4_index, g.n_phi_v);
+  write_table(dir, "all_PDF4Dscale.txt", k.p4_scale, g.n_phi_v);
   std::ostringstream info;
   const size_t n = db.materials.size();
   info << "./" << base << "/\n" << n << '\n' << std::max<size_t>(n, 1) << "\n1\n0\n0\n2\n81\n81\n32\n";

@@ -80,6 +80,7 @@ Rgb Decoder::evaluate(size_t material, int x, int y, const Direction& light, con
   // Zero below the horizon; written so that NaN angles also decode to zero.
   if (!(light.theta <= 90.0 && view.theta <= 90.0) || !std::isfinite(light.phi) || !std::isfinite(view.phi)) return {};
   const Material& mat = db_.materials[material];
+  if (mat.width <= 0 || mat.height <= 0) return {};
   const size_t texel = size_t(wrap(y, mat.height)) * size_t(mat.width) + size_t(wrap(x, mat.width));
   const int32_t p4_row = mat.p6_index[texel];
   if (p4_row < 0) return {};

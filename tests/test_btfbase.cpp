@@ -154,6 +154,28 @@ TEST_CASE("export then import reproduces alu exactly, and decodes identically") 
   }
 }
 
+TEST_CASE("an empty database and one with two materials (one HDR) round-trip") {
+  const fs::path parent = test::scratch_dir("shapes");
+  Database empty;
+  empty.codebooks = Codebooks(AngularGrid{});
+  export_btfbase(empty, (parent / "empty").string());
+  const Database e = import_btfbase((parent / "empty").string());
+  CHECK(same(e, empty));
+
+  Database two = alu();
+  Material hdr = two.materials[0];
+  hdr.name = "alu_hdr";
+  hdr.dynamic = Dynamic::HDR;
+  hdr.raw_bytes = hdr.raw_bytes * 3 / 2;  // 12 bits per channel, what the import recomputes
+  hdr.p6_index[5] = -1;                   // an uncompressed texel: stored as 0
+  two.materials.push_back(hdr);
+  export_btfbase(two, (parent / "two").string());
+  const Database t = import_btfbase((parent / "two").string());
+  CHECK(same(t, two));
+  CHECK(t.materials[1].dynamic == Dynamic::HDR);
+  CHECK(t.materials[1].p6_index[5] == -1);
+}
+
 TEST_CASE("export replaces an existing directory and never leaves a half-written one") {
   const fs::path parent = test::scratch_dir("atomic");
   const fs::path out = parent / "db";
