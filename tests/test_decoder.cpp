@@ -74,13 +74,6 @@ std::vector<DecodeQuery> random_queries(const Database& db, size_t n, uint32_t s
   return q;
 }
 
-// CPU time of this thread: wall time on the shared machine would measure the neighbours.
-double cpu_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
-}
-
 bool close(float a, float b) { return std::abs(a - b) <= 1e-3f * std::max({1.0f, std::abs(a), std::abs(b)}); }
 
 }  // namespace
@@ -212,18 +205,4 @@ TEST_CASE("decode() follows the configured device, and a reconfigured device get
   REQUIRE(ComputeDevice::get().uses_opencl());
   const auto second = dec.decode(queries);  // new context: the code-books are uploaded again
   for (size_t i = 0; i < queries.size(); ++i) CHECK(second[i].g == first[i].g);
-}
-
-TEST_CASE("single-query evaluation is fast enough for a renderer") {
-  const Decoder dec(proposte());
-  const auto queries = random_queries(proposte(), 1 << 16, 7);
-  double sink = 0;
-  const double start = cpu_seconds();
-  for (int pass = 0; pass < 4; ++pass)
-    for (const auto& q : queries) sink += dec.evaluate(0, q.x, q.y, q.light, q.view).g;
-  const double seconds = cpu_seconds() - start;
-  const double rate = 4.0 * double(queries.size()) / seconds;
-  MESSAGE("single-thread evaluate(), random queries: " << rate / 1e6 << " M evaluations per CPU second");
-  CHECK(sink > 0);
-  CHECK(rate > 1e5);  // generous (random queries are cache-hostile; bench_decoder measures ~1-2 M/s)
 }
