@@ -291,7 +291,8 @@ double ciede2000(const CieLab& x, const CieLab& y) {
 
 float display_value(float v, Dynamic dynamic) {
   if (dynamic == Dynamic::LDR) return v;
-  return std::clamp(255.0f * std::pow(std::max(v, 0.0f), 1.0f / 2.2f), 0.0f, 255.0f);
+  if (!(v > 0.0f)) return 0.0f;  // also NaN: a broken texel must not poison the histogram index
+  return std::min(255.0f * std::pow(v, 1.0f / 2.2f), 255.0f);
 }
 
 namespace {

@@ -71,7 +71,7 @@ struct EvaluationReport {
 constexpr double kCiede2000Resolution = 1.0 / 4096.0;
 
 // The 8-bit display value of a sample value: LDR values as they are; HDR linear radiance is
-// tone-mapped clamp(255 * max(v, 0)^(1/2.2), 0, 255) (kept as a real number, not rounded).
+// tone-mapped clamp(255 * max(v, 0)^(1/2.2), 0, 255) (kept as a real number, not rounded; NaN -> 0).
 float display_value(float v, Dynamic dynamic);
 
 // Compares two samples of identical geometry (size, views, lights, dynamic range; else InputError).

@@ -302,6 +302,8 @@ TEST_CASE("evaluate: HDR samples are tone-mapped by 255 v^(1/2.2) before every m
   // Radiance above 1 saturates at 255, negative radiance clips to 0.
   CHECK(display_value(4.0f, Dynamic::HDR) == 255.0f);
   CHECK(display_value(-1.0f, Dynamic::HDR) == 0.0f);
+  CHECK(display_value(std::numeric_limits<float>::quiet_NaN(), Dynamic::HDR) == 0.0f);
+  CHECK(display_value(std::numeric_limits<float>::infinity(), Dynamic::HDR) == 255.0f);
   CHECK(display_value(0.5f, Dynamic::HDR) == doctest::Approx(255 * std::pow(0.5, 1 / 2.2)).epsilon(1e-6));
   const EvaluationReport l = evaluate(lref, ltest), h = evaluate(href, htest);
   CHECK(h.mssim_y == doctest::Approx(l.mssim_y).epsilon(1e-5));
