@@ -279,14 +279,16 @@ void ResampleOperator::apply_reference(const MeasuredSample& sample, size_t firs
 }
 
 struct ResampleOperator::DeviceBuffers {
+  cl::Context context;  // held, so that a re-created device can be told apart from this one
   cl::Buffer light_rows, view_rows;
 };
 
-const ResampleOperator::DeviceBuffers& ResampleOperator::device_buffers() const {
+ResampleOperator::DeviceBuffers ResampleOperator::device_buffers() const {
   std::lock_guard<std::mutex> lock(device_mutex_);
-  if (!device_) {
-    auto& dev = ComputeDevice::get();
+  auto& dev = ComputeDevice::get();
+  if (!device_ || device_->context() != dev.context()()) {
     auto d = std::make_unique<DeviceBuffers>();
+    d->context = dev.context();
     d->light_rows = dev.upload(light_rows_);
     d->view_rows = dev.upload(view_rows_);
     device_ = std::move(d);
@@ -298,7 +300,7 @@ void ResampleOperator::apply_opencl(const MeasuredSample& sample, size_t first_t
   check_input(sample, first_texel, count);
   if (count == 0) return;
   auto& dev = ComputeDevice::get();
-  const DeviceBuffers& ops = device_buffers();
+  const DeviceBuffers ops = device_buffers();  // a copy: OpenCL objects are reference counted
   const size_t n_ab = grid_.slice2(), samples = grid_.samples(), view_nodes = samples / n_ab;
   // Work-items handle octets of 8 texels (float8); a tile is a whole number of octets.
   const size_t tile = round_up(std::min(count, size_t(settings_.tile_texels)), 8);

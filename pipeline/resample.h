@@ -70,7 +70,7 @@ class ResampleOperator {
  private:
   struct DeviceBuffers;
   void check_input(const MeasuredSample& sample, size_t first_texel, size_t count) const;
-  const DeviceBuffers& device_buffers() const;
+  DeviceBuffers device_buffers() const;  // uploads the operator once per OpenCL context
 
   AngularGrid grid_;
   ResampleSettings settings_;

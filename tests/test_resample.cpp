@@ -115,6 +115,21 @@ TEST_CASE("OpenCL and the C++ reference agree on random LDR and HDR samples") {
   }
 }
 
+TEST_CASE("the operator re-uploads itself when the device is re-created") {
+  ComputeDevice::configure("auto");
+  const MeasuredSample s = random_sample(Dynamic::LDR, 11);
+  const ResampleOperator op(s, AngularGrid{}, default_settings());
+  std::vector<float> first(op.values_per_texel() * 3), second(first.size()), ref(first.size());
+  op.apply_opencl(s, 2, 3, first.data());
+  ComputeDevice::configure("cpu-reference");
+  op.apply(s, 2, 3, ref.data());  // dispatches to the reference now
+  ComputeDevice::configure("auto");
+  REQUIRE(ComputeDevice::get().uses_opencl());
+  op.apply_opencl(s, 2, 3, second.data());
+  check_agree(first, ref);
+  check_agree(second, ref);
+}
+
 TEST_CASE("a smooth analytic BRDF is reproduced far better than by nearest-neighbour lookup") {
   const MeasuredSample s = analytic_sample();
   const ResampleOperator rbf(s, AngularGrid{}, default_settings());
@@ -157,6 +172,21 @@ TEST_CASE("every output node's weights sum to 1 and a constant input stays const
       }
     CHECK_MESSAGE(off == 0, (opencl ? "OpenCL" : "reference"));
   }
+}
+
+TEST_CASE("an output node at a measured (light, view) pair takes exactly that pair's value") {
+  const MeasuredSample s = make_bonn_sample(1, 1, Dynamic::LDR);
+  const ResampleOperator op(s, AngularGrid{}, default_settings());
+  const AngularGrid& g = op.grid();
+  // View node (theta 15, phi 0) is Bonn view 1; alpha = beta = 0 is the light at the normal, light 0.
+  REQUIRE(g.theta_v_node(1) == 15.0);
+  REQUIRE(g.phi_v_node(0) == 0.0);
+  REQUIRE(s.views()[1] == (Direction{15, 0}));
+  const auto w = op.node_weights(g.index(0, 1, g.n_alpha / 2, g.n_beta / 2));
+  double at_pair = 0, elsewhere = 0;
+  for (const auto& e : w) (e.index == s.pair_index(1, 0) ? at_pair : elsewhere) += std::abs(e.weight);
+  CHECK(at_pair == doctest::Approx(1.0).epsilon(1e-5));
+  CHECK(elsewhere < 1e-5);
 }
 
 TEST_CASE("the unmeasured region near the horizon is finite and luminance is not negative") {
