@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <random>
+#include <thread>
 #include <vector>
 
 #include "pipeline/colour.h"
@@ -113,6 +114,21 @@ TEST_CASE("OpenCL and the C++ reference agree on random LDR and HDR samples") {
     op.apply(s, 1, 14, dispatched.data());
     check_agree(dispatched, ref);
   }
+}
+
+TEST_CASE("one operator serves several threads at once") {
+  ComputeDevice::configure("auto");
+  REQUIRE(ComputeDevice::get().uses_opencl());
+  const MeasuredSample s = random_sample(Dynamic::LDR, 5);
+  const ResampleOperator op(s, AngularGrid{}, default_settings());  // device tables not uploaded yet
+  const size_t per = 4, n = op.values_per_texel() * per;
+  std::vector<float> ocl(4 * n), ref(4 * n);
+  std::vector<std::thread> threads;
+  for (size_t i = 0; i < 4; ++i)
+    threads.emplace_back([&, i] { op.apply_opencl(s, i * per, per, ocl.data() + i * n); });
+  for (auto& t : threads) t.join();
+  op.apply_reference(s, 0, 16, ref.data());
+  check_agree(ocl, ref);
 }
 
 TEST_CASE("the operator re-uploads itself when the device is re-created") {
