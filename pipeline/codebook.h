@@ -98,6 +98,7 @@ struct VersionMark {
   size_t p1 = 0, c = 0, i1 = 0, i2 = 0, p2 = 0, m = 0, p3 = 0, p4 = 0;
   size_t materials = 0;
   ValueCoding p1_values, c_values, p2_scale, p3_scale, p4_scale, p6_scale;
+  uint8_t zstd_level = 0;  // 0: sections stored raw packed; else zstd at this level where it is smaller
 
   bool operator==(const VersionMark& o) const = default;
 };

@@ -9,6 +9,8 @@
 #include <fstream>
 #include <set>
 
+#include <zstd.h>
+
 #include "pipeline/error.h"
 #include "pipeline/packing.h"
 
@@ -18,7 +20,11 @@ namespace {
 
 constexpr char kMagic[8] = {'B', 'T', 'F', 'V', 'Q', 'D', 'B', '1'};
 constexpr uint32_t kFormatVersion = 1;
-constexpr size_t kVersionRecordBytes = 48;
+constexpr size_t kVersionRecordBytes = 52;
+// A zstd section may expand at most this much (plus kZstdSlack bytes): a writer stores such a section
+// raw instead, and a reader refuses to allocate more for a section (decompression bombs).
+constexpr uint64_t kZstdMaxRatio = 1024;
+constexpr uint64_t kZstdSlack = 4096;
 constexpr size_t kEntryFixedBytes = 44;
 constexpr uint16_t kNoCodebook = 0xFFFF;
 constexpr int kMaxGridCount = 4096;
@@ -155,6 +161,9 @@ VersionMark next_codings(const Database& db, const PackSettings& s) {
   v.p3_scale = s.p3_scale;
   v.p4_scale = s.p4_scale;
   v.p6_scale = s.p6_scale;
+  if (s.zstd_level < 0 || s.zstd_level > ZSTD_maxCLevel())
+    throw InputError("zstd level " + std::to_string(s.zstd_level) + " is out of range 0.." + std::to_string(ZSTD_maxCLevel()));
+  v.zstd_level = uint8_t(s.zstd_level);
   return v;
 }
 
@@ -293,6 +302,39 @@ Material decode_material(ByteReader& r, const std::string& table_name, const Ver
   return m;
 }
 
+struct Stored {
+  uint16_t encoding = 0;
+  std::vector<uint8_t> bytes;
+};
+
+// Encoding 1 (zstd) where it is smaller and within the expansion bound, else encoding 0.
+Stored encode_section(std::vector<uint8_t> raw, int level) {
+  if (level > 0 && !raw.empty()) {
+    std::vector<uint8_t> z(ZSTD_compressBound(raw.size()));
+    const size_t n = ZSTD_compress(z.data(), z.size(), raw.data(), raw.size(), level);
+    if (!ZSTD_isError(n) && n < raw.size() && raw.size() <= kZstdMaxRatio * n + kZstdSlack) {
+      z.resize(n);
+      return {1, std::move(z)};
+    }
+  }
+  return {0, std::move(raw)};
+}
+
+// The raw packed bytes of a section whose checksum has been verified.
+std::vector<uint8_t> decode_section(const SectionEntry& e, const uint8_t* p, ByteReader& r) {
+  if (e.encoding == 0) return {p, p + e.length};
+  const unsigned long long size = ZSTD_getFrameContentSize(p, size_t(e.length));
+  if (size != e.raw_length) r.fail("the zstd frame does not hold the " + std::to_string(e.raw_length) + " bytes the table says");
+  std::vector<uint8_t> raw(size_t(e.raw_length));
+  const size_t n = ZSTD_decompress(raw.data(), raw.size(), p, size_t(e.length));
+  if (ZSTD_isError(n) || n != raw.size()) r.fail(std::string("zstd data is invalid (") + (ZSTD_isError(n) ? ZSTD_getErrorName(n) : "short") + ")");
+  return raw;
+}
+
+bool same_section(const SectionEntry& a, const SectionEntry& b) {
+  return a.kind == b.kind && a.version == b.version && a.codebook == b.codebook && a.material == b.material;
+}
+
 std::vector<uint8_t> read_file(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InputError("cannot open database '" + path + "': " + std::strerror(errno));
@@ -347,7 +389,8 @@ void publish_version(Database& db, const PackSettings& settings) {
   db.versions.push_back(mark);
 }
 
-std::vector<uint8_t> serialize_database(const Database& input, const PackSettings& settings) {
+std::vector<uint8_t> serialize_database(const Database& input, const PackSettings& settings,
+                                        const std::vector<uint8_t>* previous) {
   Database db = input;
   publish_version(db, settings);
   // Section payloads, in the order expected_sections() prescribes.
@@ -376,14 +419,38 @@ std::vector<uint8_t> serialize_database(const Database& input, const PackSetting
     }
     prev = mark;
   }
+  // Sections of an earlier file of this database whose decoded bytes are unchanged are kept verbatim.
+  std::vector<Stored> stored(payloads.size());
+  std::vector<bool> done(payloads.size(), false);
+  if (previous) {
+    try {
+      const DatabaseHead old = parse_head(previous->data(), previous->size());
+      const bool prefix = old.file_size == previous->size() && old.versions.size() <= db.versions.size() &&
+                          std::equal(old.versions.begin(), old.versions.end(), db.versions.begin());
+      for (size_t i = 0; prefix && i < old.sections.size() && i < entries.size(); ++i) {
+        const SectionEntry& e = old.sections[i];
+        const uint8_t* p = previous->data() + e.offset;
+        ByteReader r(p, size_t(e.length), "previous");
+        if (!same_section(e, entries[i]) || crc64(p, size_t(e.length)) != e.checksum) break;
+        if (decode_section(e, p, r) != payloads[i]) continue;
+        stored[i] = Stored{e.encoding, std::vector<uint8_t>(p, p + e.length)};
+        done[i] = true;
+      }
+    } catch (const Error&) {
+      // Not a usable earlier file: everything is encoded afresh.
+    }
+  }
   uint64_t head = kHeaderBytes + kVersionRecordBytes * db.versions.size() + 8;
   for (const auto& e : entries) head += kEntryFixedBytes + e.material.size();
   uint64_t offset = head;
   for (size_t i = 0; i < entries.size(); ++i) {
+    if (!done[i]) stored[i] = encode_section(payloads[i], db.versions[entries[i].version - 1].zstd_level);
     entries[i].offset = offset;
-    entries[i].length = entries[i].raw_length = payloads[i].size();
-    entries[i].checksum = crc64(payloads[i].data(), payloads[i].size());
-    offset += payloads[i].size();
+    entries[i].encoding = stored[i].encoding;
+    entries[i].length = stored[i].bytes.size();
+    entries[i].raw_length = payloads[i].size();
+    entries[i].checksum = crc64(stored[i].bytes.data(), stored[i].bytes.size());
+    offset += entries[i].length;
   }
 
   std::vector<uint8_t> out;
@@ -404,6 +471,8 @@ std::vector<uint8_t> serialize_database(const Database& input, const PackSetting
       w.u8(codings(mark, k)->mode);
       w.u8(codings(mark, k)->bits);
     }
+    w.u8(mark.zstd_level);
+    for (int k = 0; k < 3; ++k) w.u8(0);
   }
   for (const auto& e : entries) {
     w.u16(uint16_t(e.kind));
@@ -418,7 +487,7 @@ std::vector<uint8_t> serialize_database(const Database& input, const PackSetting
     w.bytes(e.material.data(), e.material.size());
   }
   w.u64(crc64(out.data(), out.size()));
-  for (const auto& p : payloads) w.bytes(p.data(), p.size());
+  for (const auto& p : stored) w.bytes(p.bytes.data(), p.bytes.size());
   return out;
 }
 
@@ -489,6 +558,9 @@ DatabaseHead parse_head(const uint8_t* data, size_t n, const std::string& where)
       if (!ok) r.fail("version " + std::to_string(v + 1) + " has an unknown value coding");
       *codings(mark, k) = ValueCoding{ValueCoding::Mode(mode), bits};
     }
+    mark.zstd_level = r.u8();
+    if (mark.zstd_level > ZSTD_maxCLevel()) r.fail("version " + std::to_string(v + 1) + " has an invalid zstd level");
+    if (r.u8() != 0 || r.u16() != 0) r.fail("version " + std::to_string(v + 1) + ": reserved bytes are not zero");
     for (CodebookId id : kAllCodebooks)
       if (rows_in(mark, id) < rows_in(prev, id))
         r.fail("version " + std::to_string(v + 1) + " shrinks code-book " + codebook_name(id));
@@ -536,8 +608,11 @@ DatabaseHead parse_head(const uint8_t* data, size_t n, const std::string& where)
     } else if (id != kNoCodebook || len == 0 || !names.insert(e.material).second) {
       r.fail(s + ": material entry without a name, with a code-book id, or a duplicate name");
     }
-    if (e.encoding != 0) r.fail(s + ": encoding " + std::to_string(e.encoding) + " is not supported by this reader");
-    if (e.raw_length != e.length) r.fail(s + ": raw length differs from the stored length of a raw section");
+    if (e.encoding > 1) r.fail(s + ": encoding " + std::to_string(e.encoding) + " is not supported by this reader");
+    if (e.encoding == 0 ? e.raw_length != e.length
+                        : (e.raw_length > kZstdMaxRatio * e.length + kZstdSlack || e.raw_length > 0xFFFFFFFFu))
+      r.fail(s + ": raw length " + std::to_string(e.raw_length) + " does not fit the stored length " +
+             std::to_string(e.length));
     if (e.offset != offset || e.length > h.file_size - offset)
       r.fail(s + ": offset " + std::to_string(e.offset) + " / length " + std::to_string(e.length) +
              " does not continue the previous section inside the file");
@@ -571,8 +646,10 @@ Database parse_database(const std::vector<uint8_t>& bytes, const std::string& wh
     for (; next < h.sections.size() && h.sections[next].version == v + 1; ++next) {
       const SectionEntry& e = h.sections[next];
       const uint8_t* p = bytes.data() + e.offset;
-      ByteReader r(p, size_t(e.length), where + ": " + describe(e, next));
-      if (crc64(p, size_t(e.length)) != e.checksum) r.fail("checksum does not match (corrupted)");
+      ByteReader check(p, size_t(e.length), where + ": " + describe(e, next));
+      if (crc64(p, size_t(e.length)) != e.checksum) check.fail("checksum does not match (corrupted)");
+      const std::vector<uint8_t> raw = decode_section(e, p, check);
+      ByteReader r(raw.data(), raw.size(), check.where());
       if (e.kind == SectionKind::Codebook) decode_chunk(r, db.codebooks, e.codebook, v + 1, prev, mark);
       else
         db.materials.push_back(decode_material(r, e.material, mark));
@@ -589,7 +666,15 @@ Database parse_database(const std::vector<uint8_t>& bytes, const std::string& wh
 }
 
 void write_database(const Database& db, const std::string& path, const PackSettings& settings) {
-  const std::vector<uint8_t> bytes = serialize_database(db, settings);
+  std::vector<uint8_t> previous;
+  if (is_database_file(path)) {
+    try {
+      previous = read_file(path);
+    } catch (const Error&) {
+      previous.clear();
+    }
+  }
+  const std::vector<uint8_t> bytes = serialize_database(db, settings, previous.empty() ? nullptr : &previous);
   const std::string tmp = path + ".tmp-" + std::to_string(::getpid());
   const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) throw InputError("cannot write database '" + path + "': " + std::strerror(errno));

@@ -26,6 +26,9 @@ struct PackSettings {
   ValueCoding p3_scale{ValueCoding::Log, 8};
   ValueCoding p4_scale{ValueCoding::Log, 8};
   ValueCoding p6_scale{ValueCoding::Log, 8};
+  // Entropy coding beyond the paper: each section of the new version is zstd-compressed at this level
+  // (encoding 1) when that is smaller; 0 stores every section raw packed (encoding 0).
+  int zstd_level = 19;
 
   // 32-bit floats everywhere: an imported original (BTFBASE) database is stored without loss.
   static PackSettings lossless();
@@ -41,7 +44,7 @@ enum class SectionKind : uint16_t { Codebook = 1, Material = 2 };
 // One row of the section table.
 struct SectionEntry {
   SectionKind kind = SectionKind::Codebook;
-  uint16_t encoding = 0;  // 0 = raw packed (the only one in format version 1)
+  uint16_t encoding = 0;  // 0 = raw packed, 1 = zstd frame of the raw packed bytes
   uint32_t version = 0;   // the database version that added this section
   CodebookId codebook = CodebookId::P1;  // kind Codebook
   std::string material;                  // kind Material
@@ -101,13 +104,18 @@ void quantize_new_rows(Database& db, const PackSettings& settings = {});
 void publish_version(Database& db, const PackSettings& settings = {});
 
 // The file bytes of `db` with its unpublished content published as a new version (the previously
-// published versions are reproduced byte for byte). A pure function of (db, settings).
-std::vector<uint8_t> serialize_database(const Database& db, const PackSettings& settings = {});
+// published versions are reproduced byte for byte). A pure function of (db, settings) for a given
+// libzstd; given the bytes of an earlier file of the same database (`previous`), a section whose
+// decoded bytes are unchanged is copied from it verbatim, so old sections stay byte-identical even
+// if a newer libzstd would compress them differently. An unusable `previous` is ignored.
+std::vector<uint8_t> serialize_database(const Database& db, const PackSettings& settings = {},
+                                        const std::vector<uint8_t>* previous = nullptr);
 // Checks everything (see read_database) and returns the database with its versions.
 Database parse_database(const std::vector<uint8_t>& bytes, const std::string& where = "database");
 
-// serialize_database() written atomically (temporary file, fsync, rename). Invalid input
-// (InputError/CorruptError from Database::validate) changes nothing on disk.
+// serialize_database() written atomically (temporary file, fsync, rename), reusing the sections of
+// an existing database at `path` (see `previous` above). Invalid input (InputError/CorruptError from
+// Database::validate) changes nothing on disk.
 void write_database(const Database& db, const std::string& path, const PackSettings& settings = {});
 // Reads and validates everything: magic, format version, head checksum, every section's checksum,
 // lengths, offsets, the section order implied by the versions, index ranges. Any problem throws
