@@ -172,21 +172,26 @@ float Quantizer::value(uint32_t code) const {
 }
 
 uint32_t Quantizer::code(float v) const {
-  const uint32_t first = coding.mode == ValueCoding::Log ? 1 : 0;
+  const uint32_t first = coding.mode == ValueCoding::Log ? 1 : 0, L = levels();
   if (coding.mode == ValueCoding::Log && v <= 0) return 0;
-  // Smallest code in [first, L] whose value is >= target (value() is non-decreasing in the code).
-  auto lower_bound = [&](float target) {
-    uint32_t lo = first, hi = levels();
-    while (lo < hi) {
-      const uint32_t mid = lo + (hi - lo) / 2;
-      if (value(mid) >= target) hi = mid;
-      else lo = mid + 1;
-    }
-    return lo;
+  // Smallest code in [first, L] whose value is >= target. value() is non-decreasing in the code, so
+  // walking from the analytic guess gives the same answer as a binary search, in a step or two.
+  auto lower_bound = [&](float target, double guess) {
+    uint32_t q = uint32_t(std::clamp(guess, double(first), double(L)));
+    while (q > first && value(q - 1) >= target) --q;
+    while (q < L && value(q) < target) ++q;
+    return q;
   };
-  const uint32_t above = lower_bound(v);
+  double guess = 0;
+  if (max > min) {
+    guess = coding.mode == ValueCoding::Log
+                ? 1 + (std::log(double(v)) - std::log(double(min))) / (std::log(double(max)) - std::log(double(min))) * (L - 1)
+                : (double(v) - min) / (double(max) - min) * L;
+    if (!std::isfinite(guess)) guess = first;
+  }
+  const uint32_t above = lower_bound(v, std::ceil(guess));
   if (above == first || value(above) - v < v - value(above - 1)) return above;
-  return lower_bound(value(above - 1));
+  return lower_bound(value(above - 1), double(above - 1));
 }
 
 void write_values(ByteWriter& w, const float* v, size_t n, ValueCoding requested, const std::string& what) {
