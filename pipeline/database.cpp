@@ -3,6 +3,7 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <cerrno>
 #include <cstring>
 #include <filesystem>
@@ -297,7 +298,10 @@ Material decode_material(ByteReader& r, const std::string& table_name, const Ver
   const uint64_t limit = uint64_t(mark.p4) + 1;
   const auto idx = read_indices(r, n, index_bits(limit), limit, "P6 indices");
   m.p6_index.resize(n);
-  for (size_t i = 0; i < n; ++i) m.p6_index[i] = int32_t(idx[i]) - 1;
+  for (size_t i = 0; i < n; ++i) {
+    if (idx[i] > 0x7FFFFFFFu) r.fail("P6 index " + std::to_string(idx[i]) + " does not fit the model");
+    m.p6_index[i] = int32_t(idx[i]) - 1;
+  }
   m.p6_scale = read_values(r, n, "P6 scales");
   return m;
 }
@@ -675,7 +679,8 @@ void write_database(const Database& db, const std::string& path, const PackSetti
     }
   }
   const std::vector<uint8_t> bytes = serialize_database(db, settings, previous.empty() ? nullptr : &previous);
-  const std::string tmp = path + ".tmp-" + std::to_string(::getpid());
+  static std::atomic<unsigned> counter{0};
+  const std::string tmp = path + ".tmp-" + std::to_string(::getpid()) + "-" + std::to_string(counter++);
   const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) throw InputError("cannot write database '" + path + "': " + std::strerror(errno));
   size_t done = 0;

@@ -269,6 +269,20 @@ TEST_CASE("append-only versions: every section of version 1 is byte-identical in
   CHECK(sections_since(h2, 2).empty());
   CHECK(sections_since(h2, 0).size() == h2.sections.size());
 
+  // Delta download: a client holding v1 fetches the 56-byte header, the head, and only the new
+  // sections by range; its own v1 sections fill the rest and rebuild the v2 file byte for byte.
+  const uint64_t head_bytes = head_length(b2.data(), kHeaderBytes);
+  const DatabaseHead fetched = parse_head(b2.data(), size_t(head_bytes), "v2 head");
+  CHECK(fetched.sections == h2.sections);
+  std::vector<uint8_t> rebuilt(b2.begin(), b2.begin() + long(head_bytes));
+  for (size_t i = 0; i < fetched.sections.size(); ++i) {
+    const SectionEntry& s = fetched.sections[i];
+    const auto& source = s.version <= 1 ? b1 : b2;  // old sections from the client's own copy
+    const uint64_t at = s.version <= 1 ? h1.sections[i].offset : s.offset;
+    rebuilt.insert(rebuilt.end(), source.begin() + long(at), source.begin() + long(at + s.length));
+  }
+  CHECK(rebuilt == b2);
+
   const Database back = read_database(v2);
   REQUIRE(back.materials.size() == 2);
   CHECK(back.materials[0] == first);
@@ -471,8 +485,15 @@ TEST_CASE("every flipped byte and every truncation of a small file is a CorruptE
   publish_version(db);
   append_rows(db, rng, Counts{1, 0, 1, 0, 1, 1, 1, 1});
   db.materials.push_back(random_material(rng, "b", 2, 1, db.codebooks.p4_index.rows()));
+  Material flat = random_material(rng, "flat", 24, 24, db.codebooks.p4_index.rows());
+  std::fill(flat.p6_index.begin(), flat.p6_index.end(), 1);
+  std::fill(flat.p6_scale.begin(), flat.p6_scale.end(), 1.0f);
+  db.materials.push_back(flat);  // compresses: its section is stored with zstd (encoding 1)
   const auto good = serialize_database(db);
   REQUIRE(good.size() < 2000);
+  const DatabaseHead head = parse_head(good.data(), good.size());
+  CHECK(head.sections.back().encoding == 1);
+  CHECK(head.sections.front().encoding == 0);
   MESSAGE("small file: " << good.size() << " bytes, every position flipped and truncated");
   CHECK_NOTHROW(parse_database(good));
   int corrupt = 0;
