@@ -340,14 +340,14 @@ bool same_section(const SectionEntry& a, const SectionEntry& b) {
 }
 
 std::vector<uint8_t> read_file(const std::string& path) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec)) throw InputError("cannot open database '" + path + "': not a regular file");
+  const uintmax_t size = std::filesystem::file_size(path, ec);
   std::ifstream in(path, std::ios::binary);
-  if (!in) throw InputError("cannot open database '" + path + "': " + std::strerror(errno));
-  in.seekg(0, std::ios::end);
-  const auto size = in.tellg();
-  if (size < 0) throw InputError("cannot read database '" + path + "'");
-  in.seekg(0);
+  if (ec || !in) throw InputError("cannot open database '" + path + "': " + (ec ? ec.message() : std::strerror(errno)));
   std::vector<uint8_t> bytes(static_cast<size_t>(size));
-  if (!in.read(reinterpret_cast<char*>(bytes.data()), size)) throw InputError("cannot read database '" + path + "'");
+  if (!in.read(reinterpret_cast<char*>(bytes.data()), std::streamsize(size)) || in.peek() != EOF)
+    throw InputError("cannot read database '" + path + "' (it changed while being read?)");
   return bytes;
 }
 

@@ -560,5 +560,65 @@ TEST_CASE("a file that is not a database gets a clear error") {
     CHECK(std::string(e.what()).find("notes.txt") != std::string::npos);
   }
   CHECK_THROWS_AS(read_database((dir / "missing.btfdb").string()), InputError);
+  CHECK_THROWS_AS(read_database(dir.string()), InputError);  // a directory
+  std::ofstream(dir / "empty.btfdb").flush();
+  CHECK_THROWS_AS(read_database((dir / "empty.btfdb").string()), CorruptError);
   CHECK(!is_database_file((dir / "missing.btfdb").string()));
+}
+
+namespace {
+
+void put_u64(std::vector<uint8_t>& b, size_t at, uint64_t v) {
+  for (int i = 0; i < 8; ++i) b[at + size_t(i)] = uint8_t(v >> (8 * i));
+}
+
+}  // namespace
+
+TEST_CASE("changed bytes with recomputed checksums are decoded or rejected, never a crash") {
+  // What a crafted file could do: every byte changed, then the section and head CRCs made valid again.
+  // The reader must either decode a consistent database or throw CorruptError (no other exception).
+  std::mt19937 rng(10);
+  AngularGrid g;
+  g.n_beta = 3;
+  g.n_alpha = 2;
+  g.n_theta_v = 2;
+  g.n_phi_v = 2;
+  Database db = make_database(rng, g, Counts{3, 2, 2, 2, 3, 3, 2, 2}, 1, 3, 2);
+  publish_version(db);
+  append_rows(db, rng, Counts{1, 1, 1, 1, 1, 1, 1, 1});
+  Material flat = random_material(rng, "flat", 24, 24, db.codebooks.p4_index.rows());
+  std::fill(flat.p6_index.begin(), flat.p6_index.end(), 2);
+  db.materials.push_back(flat);
+  const auto good = serialize_database(db);
+  const DatabaseHead h = parse_head(good.data(), good.size());
+  // Where each table entry's checksum field lives.
+  std::vector<size_t> crc_at;
+  size_t at = kHeaderBytes + 52 * h.versions.size();
+  for (const auto& s : h.sections) {
+    crc_at.push_back(at + 32);
+    at += 44 + s.material.size();
+  }
+  const size_t head_crc = size_t(h.head_length) - 8;
+  int decoded = 0, rejected = 0;
+  for (size_t i = 0; i < good.size(); ++i) {
+    if (i >= head_crc && i < head_crc + 8) continue;
+    for (uint8_t mask : {uint8_t(0x01), uint8_t(0x10), uint8_t(0xFF)}) {
+      auto bad = good;
+      bad[i] ^= mask;
+      for (size_t s = 0; s < h.sections.size(); ++s) {
+        const auto& e = h.sections[s];
+        if (i >= e.offset && i < e.offset + e.length) put_u64(bad, crc_at[s], crc64(bad.data() + e.offset, size_t(e.length)));
+      }
+      put_u64(bad, head_crc, crc64(bad.data(), head_crc));
+      try {
+        const Database d = parse_database(bad, "crafted");
+        d.validate();
+        ++decoded;
+      } catch (const CorruptError&) {
+        ++rejected;
+      }
+    }
+  }
+  MESSAGE("crafted changes: " << decoded << " decoded consistently, " << rejected << " rejected");
+  CHECK(rejected > decoded);
 }
