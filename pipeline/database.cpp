@@ -373,7 +373,7 @@ void quantize_new_rows(Database& db, const PackSettings& settings) {
   for (CodebookId id : kAllCodebooks)
     for (const Field& f : fields_of(db.codebooks, id))
       if (f.values) {
-        const size_t r0 = std::min(rows_in(prev, id), rows_in(now, id)), r1 = rows_in(now, id);
+        const size_t r1 = f.values->rows(), r0 = std::min(rows_in(prev, id), r1);
         quantize_values(f.values->row(r0), (r1 - r0) * f.values->cols(), codings.*f.coding, section_name(id, 0));
       }
   for (size_t i = std::min(prev.materials, now.materials); i < now.materials; ++i) {
