@@ -84,7 +84,13 @@ Rgb Decoder::evaluate(size_t material, int x, int y, const Direction& light, con
   const size_t texel = size_t(wrap(y, mat.height)) * size_t(mat.width) + size_t(wrap(x, mat.width));
   const int32_t p4_row = mat.p6_index[texel];
   if (p4_row < 0) return {};
-  const bool hdr = mat.dynamic == Dynamic::HDR;
+  const Rgb v = evaluate_p4(uint32_t(p4_row), mat.dynamic == Dynamic::HDR, light, view);
+  const double s6 = double(mat.p6_scale[texel]);
+  return {float(v.r * s6), float(v.g * s6), float(v.b * s6)};
+}
+
+Rgb Decoder::evaluate_p4(uint32_t p4_row, bool hdr, const Direction& light, const Direction& view) const {
+  if (!(light.theta <= 90.0 && view.theta <= 90.0) || !std::isfinite(light.phi) || !std::isfinite(view.phi)) return {};
   const AngularGrid& grid = db_.codebooks.grid;
 
   // Steps 1-3: onion angles of the light for this view azimuth (to_onion of parametrization.h, with
@@ -144,8 +150,7 @@ Rgb Decoder::evaluate(size_t material, int x, int y, const Direction& light, con
       b += s * double(v.b);
     }
   }
-  const double s6 = double(mat.p6_scale[texel]);
-  return {float(r * s6), float(g * s6), float(b * s6)};
+  return {float(r), float(g), float(b)};
 }
 
 std::vector<Rgb> Decoder::decode(const std::vector<DecodeQuery>& queries) const {

@@ -44,6 +44,10 @@ class Decoder {
   Rgb evaluate(size_t material, int x, int y, const Direction& light, const Direction& view) const;
 
   // Decodes every query on the current compute device (ComputeDevice::get().backend()).
+  // One P4 entry without the P6 scale: every texel that shares the entry is this value times its
+  // own P6 scale, which is what makes whole images (reconstruction, previews) cheap.
+  Rgb evaluate_p4(uint32_t p4_row, bool hdr, const Direction& light, const Direction& view) const;
+
   std::vector<Rgb> decode(const std::vector<DecodeQuery>& queries) const;
   // The plain C++ reference of the batch kernel (evaluate() per query).
   std::vector<Rgb> decode_reference(const std::vector<DecodeQuery>& queries) const;
