@@ -1,12 +1,21 @@
+#include <archive.h>
+#include <archive_entry.h>
 #include <doctest/doctest.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <filesystem>
+#include <regex>
+#include <set>
 #include <string>
+#include <vector>
 
 #include "pipeline/error.h"
 #include "pipeline/opencl_runtime.h"
+#include "pipeline/sample_io.h"
 #include "pipeline/synthetic.h"
+#include "support/test_paths.h"
 
 using namespace btfvq;
 
@@ -150,4 +159,98 @@ TEST_CASE("bad presets and sizes are rejected with a clear message") {
   CHECK_THROWS_AS(make_material("wool", 0, 1), InputError);
   CHECK_THROWS_AS(make_material("wool", 2049, 1), InputError);
   CHECK(synthetic_presets().size() >= 6);
+}
+
+namespace {
+
+// Base names of the images of a UBO2003 zip (libarchive), or of the .jpg files under a directory.
+std::vector<std::string> image_names(const std::filesystem::path& path) {
+  std::vector<std::string> names;
+  if (std::filesystem::is_directory(path)) {
+    for (const auto& e : std::filesystem::recursive_directory_iterator(path))
+      if (e.is_regular_file()) names.push_back(e.path().filename().string());
+    return names;
+  }
+  archive* a = archive_read_new();
+  archive_read_support_format_zip(a);
+  REQUIRE(archive_read_open_filename(a, path.c_str(), 1 << 16) == ARCHIVE_OK);
+  archive_entry* entry = nullptr;
+  while (archive_read_next_header(a, &entry) == ARCHIVE_OK) {
+    if (archive_entry_filetype(entry) != AE_IFREG) continue;
+    const std::string name = archive_entry_pathname(entry);
+    names.push_back(name.substr(name.rfind('/') + 1));
+  }
+  archive_read_free(a);
+  return names;
+}
+
+// Every name is "NNNNN tlTTT plPPP tvTTT pvPPP.jpg", the running numbers are distinct, and the
+// (light, view) pairs are exactly the 81 x 81 Bonn directions.
+void check_bonn_names(const std::vector<std::string>& names) {
+  REQUIRE(names.size() == 6561);
+  const std::regex pattern(R"(^(\d{5}) tl(\d{3}) pl(\d{3}) tv(\d{3}) pv(\d{3})\.jpg$)");
+  std::set<int> indices;
+  std::set<std::array<int, 4>> pairs;
+  for (const auto& n : names) {
+    std::smatch m;
+    REQUIRE_MESSAGE(std::regex_match(n, m, pattern), n);
+    indices.insert(std::stoi(m[1]));
+    pairs.insert({std::stoi(m[2]), std::stoi(m[3]), std::stoi(m[4]), std::stoi(m[5])});
+  }
+  CHECK(indices.size() == 6561);
+  std::set<std::array<int, 4>> expected;
+  for (const auto& v : bonn81())
+    for (const auto& l : bonn81()) expected.insert({int(l.theta), int(l.phi), int(v.theta), int(v.phi)});
+  CHECK(pairs == expected);
+}
+
+std::string btfvq_command() { return (btfvq::test::bin_dir() / "btfvq").string(); }
+
+}  // namespace
+
+TEST_CASE("btfvq synth writes a zip and a directory holding the 6561 Bonn images") {
+  const auto dir = btfvq::test::scratch_dir("synth-cli");
+  for (const std::string target : {"wool.zip", "wool_dir"}) {
+    CAPTURE(target);
+    const auto out_path = dir / target;
+    std::string out;
+    const int rc = btfvq::test::run_command(
+        btfvq_command() + " synth --preset wool --size 16 --seed 3 --out '" + out_path.string() + "'", &out);
+    REQUIRE_MESSAGE(rc == 0, out);
+    CHECK(out.find("render") != std::string::npos);
+    CHECK(out.find("write") != std::string::npos);
+    CHECK(out.find(out_path.string()) != std::string::npos);
+    check_bonn_names(image_names(out_path));
+
+    // What was written reads back as the rendered sample (JPEG-close), direction by direction.
+    const auto loaded = load_sample(out_path.string());
+    const auto rendered = synthesize({"wool", 16, 3, Dynamic::LDR, RenderPath::Auto, {}});
+    REQUIRE(loaded.texel_count() == rendered.texel_count());
+    REQUIRE(loaded.pair_count() == rendered.pair_count());
+    double diff = 0;
+    for (size_t v = 0; v < loaded.view_count(); ++v)
+      for (size_t l = 0; l < loaded.lights(v).size(); ++l) {
+        const auto& dv = loaded.views()[v];
+        const auto& dl = loaded.lights(v)[l];
+        const size_t p = loaded.pair_index(v, l), q = rendered.pair_index(bonn_index(dv.theta, dv.phi),
+                                                                           bonn_index(dl.theta, dl.phi));
+        for (size_t t = 0; t < loaded.texel_count(); ++t)
+          for (int c = 0; c < 3; ++c) diff += std::abs(loaded.value(t, p, c) - rendered.value(t, q, c));
+      }
+    CHECK(diff / double(loaded.texel_count() * loaded.pair_count() * 3) < 3.0);
+  }
+}
+
+TEST_CASE("btfvq synth rejects an unknown preset (listing the presets) and sizes outside 1..2048") {
+  const auto dir = btfvq::test::scratch_dir("synth-cli-bad");
+  std::string out;
+  CHECK(btfvq::test::run_command(btfvq_command() + " synth --preset velvet --out " + (dir / "x.zip").string(), &out) ==
+        2);
+  for (const auto& p : synthetic_presets()) CHECK(out.find(p.name) != std::string::npos);
+  for (const std::string size : {"0", "2049", "abc"}) {
+    CHECK(btfvq::test::run_command(
+              btfvq_command() + " synth --preset tile --size " + size + " --out " + (dir / "y.zip").string(), &out) == 2);
+    CHECK(out.find("--size") != std::string::npos);
+  }
+  CHECK(std::filesystem::is_empty(dir));
 }
