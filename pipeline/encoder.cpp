@@ -226,6 +226,59 @@ void Encoder::cache_p4(uint32_t e) {
     }
   }
   p4_bright_.push_back(float(bright / np));
+  if (settings_.metric == Metric::MSE) laesa_insert(e);
+}
+
+// <a - o, b - o> over the channels an RGB scale acts on, with both planes' factors.
+double Encoder::plane_dot(const PlaneRef& a, const PlaneRef& b) const {
+  const int n = g2_.size();
+  double sum = 0;
+  for (int c = 0; c < 3; ++c) {
+    if (!channel_scales(dyn_, c)) continue;
+    const ChannelView x = c == 0 ? p2_store_.view(a.p2, 0) : i2_store_.view(a.i2, c - 1);
+    const ChannelView y = c == 0 ? p2_store_.view(b.p2, 0) : i2_store_.view(b.i2, c - 1);
+    const double o = channel_offset(dyn_, c);
+    double xy = 0;
+    for (int i = 0; i < n; ++i) xy += double(x.v[i]) * y.v[i];
+    sum += xy - o * (x.sum + y.sum) + n * o * o;
+  }
+  return double(a.factor) * double(b.factor) * sum;
+}
+
+namespace {
+double angle_of(double dot, double na, double nb) {
+  if (!(na > 0) || !(nb > 0)) return std::numeric_limits<double>::quiet_NaN();
+  return std::acos(std::clamp(dot / (na * nb), -1.0, 1.0));
+}
+}  // namespace
+
+void Encoder::laesa_insert(uint32_t e) {
+  std::vector<PlaneRef> pe, pp;
+  planes_of_p4(e, pe);
+  double norm2 = 0;
+  for (const auto& p : pe) norm2 += plane_dot(p, p);
+  p4_norm_.push_back(std::sqrt(std::max(0.0, norm2)));
+  pivot_angle_.resize(size_t(e + 1) * kPivots, std::numeric_limits<double>::quiet_NaN());
+  double closest = 10;
+  for (size_t j = 0; j < pivots_.size(); ++j) {
+    planes_of_p4(pivots_[j], pp);
+    double d = 0;
+    for (size_t i = 0; i < pe.size(); ++i) d += plane_dot(pe[i], pp[i]);
+    const double a = angle_of(d, p4_norm_[e], p4_norm_[pivots_[j]]);
+    pivot_angle_[size_t(e) * kPivots + j] = a;
+    if (std::isfinite(a)) closest = std::min(closest, a);
+  }
+  // Dynamic LAESA: a new entry far enough from the pivots becomes one while there is room.
+  if (int(pivots_.size()) < kPivots && p4_norm_[e] > 0 && closest > 0.05) {
+    const size_t j = pivots_.size();
+    pivots_.push_back(e);
+    for (uint32_t other = 0; other <= e; ++other) {
+      planes_of_p4(other, pp);
+      double d = 0;
+      for (size_t i = 0; i < pe.size(); ++i) d += plane_dot(pp[i], pe[i]);
+      pivot_angle_[size_t(other) * kPivots + j] = other == e ? 0.0 : angle_of(d, p4_norm_[other], p4_norm_[e]);
+    }
+  }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -382,7 +435,50 @@ Encoder::Match Encoder::search_composite(const Query& q, int level, double thres
       [&](uint32_t e) { return scaled_distance(qsig.data(), sig.data() + size_t(e) * size_t(ns), ns); }, ctx.proxy,
       ctx.order, ctx.tried);
   std::vector<PlaneRef> planes;
+  // LAESA (MSE only): angles of the query to the pivots bound every candidate's residual from below.
+  const bool laesa = level == 4 && settings_.metric == Metric::MSE && settings_.pruning && !pivots_.empty();
+  double qnorm2 = 0;
+  std::vector<double> qangle;
+  if (laesa) {
+    const int n = g2_.size();
+    for (int p = 0; p < q.planes; ++p)
+      for (int c = 0; c < 3; ++c) {
+        if (!channel_scales(dyn_, c)) continue;
+        const ChannelView& x = q.at(p, c);
+        const double o = channel_offset(dyn_, c);
+        qnorm2 += x.sumsq - 2 * o * x.sum + n * o * o;
+      }
+    for (uint32_t pv : pivots_) {
+      planes_of_p4(pv, planes);
+      double d = 0;
+      for (int p = 0; p < q.planes; ++p)
+        for (int c = 0; c < 3; ++c) {
+          if (!channel_scales(dyn_, c)) continue;
+          const ChannelView& x = q.at(p, c);
+          const ChannelView y = c == 0 ? p2_store_.view(planes[size_t(p)].p2, 0) : i2_store_.view(planes[size_t(p)].i2, c - 1);
+          const double o = channel_offset(dyn_, c);
+          double xy = 0;
+          for (int i = 0; i < n; ++i) xy += double(x.v[i]) * y.v[i];
+          d += planes[size_t(p)].factor * (xy - o * (x.sum + y.sum) + n * o * o);
+        }
+      qangle.push_back(angle_of(d, std::sqrt(std::max(0.0, qnorm2)), p4_norm_[pv]));
+    }
+  }
+  const double kHalfPi = 1.5707963267948966;
   auto eval = [&](uint32_t e, double bound, double* sc, float* s) {
+    if (laesa && bound > kNoBound) {
+      double lb = 0;
+      for (size_t j = 0; j < qangle.size(); ++j) {
+        const double pa = pivot_angle_[size_t(e) * kPivots + j];
+        if (std::isfinite(pa) && std::isfinite(qangle[j])) lb = std::max(lb, std::abs(qangle[j] - pa));
+      }
+      lb = std::min(std::max(0.0, lb - 1e-6), kHalfPi);
+      const double residual = qnorm2 * std::sin(lb) * std::sin(lb) * (1.0 - 1e-5);  // safety margin for rounding
+      if (-residual < bound) {
+        ++ctx.counts.laesa_skipped;
+        return false;
+      }
+    }
     if (level == 4) planes_of_p4(e, planes);
     else if (level == 3) planes_of_p3(e, planes);
     else planes.assign(1, PlaneRef{books_.m.at(e, 0), books_.m.at(e, 1), 1.0f});
@@ -543,6 +639,7 @@ P6Entry Encoder::encode_growing(const float* texel) {
   stats_.comparisons += ctx.counts.comparisons;
   stats_.pruned += ctx.counts.pruned;
   stats_.fallbacks += ctx.counts.fallbacks;
+  stats_.laesa_skipped += ctx.counts.laesa_skipped;
   P6Entry r;
   r.index = uint32_t(m.index);
   r.scale = m.scale;

@@ -47,6 +47,7 @@ struct EncoderStats {
   uint64_t comparisons = 0;  // candidate evaluations started
   uint64_t pruned = 0;       // of which abandoned early
   uint64_t fallbacks = 0;    // new entries re-encoded exactly because their composition missed
+  uint64_t laesa_skipped = 0;  // P4 candidates excluded by the MSE pivot bound (of `pruned`)
 };
 
 // Brightness to which new M, P3 and P4 entries are normalized: mean of (Y - 16) for LDR, of Y for HDR.
@@ -127,6 +128,14 @@ class Encoder {
   std::vector<float> p2_sig_, i2_sig_;                 // row means
   std::vector<float> m_bright_, p3_bright_, p4_bright_;  // mean of (Y - offset)
   std::unordered_map<uint64_t, uint32_t> m_lookup_;    // (P2, I2) -> M
+  // LAESA pivot index over P4 for the MSE metric (paper 5.1.1): angles between offset-removed
+  // entries are a metric, and the least-squares residual is |x'|^2 sin^2(angle).
+  static constexpr int kPivots = 8;
+  std::vector<uint32_t> pivots_;
+  std::vector<double> pivot_angle_;  // P4 entries x kPivots (NaN: undefined)
+  std::vector<double> p4_norm_;      // |entry'| over the channels an RGB scale acts on
+  double plane_dot(const PlaneRef& a, const PlaneRef& b) const;
+  void laesa_insert(uint32_t e);
   mutable EncoderStats stats_;
 };
 

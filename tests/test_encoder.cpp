@@ -259,3 +259,28 @@ TEST_CASE("thresholds come from the config; bad values are ConfigErrors naming t
   CHECK_THROWS_AS(ParameterDictionary::parse(R"({"thresholds": {"ssim": {"p4": NaN}}})", "o"), ConfigError);
   CHECK_THROWS_AS(t.relaxed(-1), ConfigError);
 }
+
+TEST_CASE("MSE: the LAESA pivot bound and partial sums choose exactly what the exhaustive search chooses") {
+  SyntheticMaterial mat(8, 8);
+  SimilaritySettings pruned, exhaustive;
+  pruned.metric = exhaustive.metric = Metric::MSE;
+  exhaustive.pruning = false;
+  const Thresholds t = Thresholds::from(ParameterDictionary::embedded_default("pipeline"), Metric::MSE).relaxed(0.3);
+  Codebooks a(mat.grid), b(mat.grid);
+  Encoder ea(a, Dynamic::LDR, t, pruned), eb(b, Dynamic::LDR, t, exhaustive);
+  for (uint32_t id = 0; id < 16; ++id) {
+    const auto x = mat.texel(id * 7 % 64);
+    const P6Entry p = ea.encode_growing(x.data()), q = eb.encode_growing(x.data());
+    CHECK(p.index == q.index);
+    CHECK(p.scale == q.scale);
+  }
+  CHECK(a == b);
+  REQUIRE(a.p4_index.rows() > 3);
+  CHECK(ea.stats().laesa_skipped > 0);
+  for (uint32_t id = 20; id < 40; ++id) {
+    const auto x = mat.texel(id);
+    const P6Entry p = ea.encode_frozen(x.data()), q = eb.encode_frozen(x.data());
+    CHECK(p.index == q.index);
+    CHECK(p.scale == q.scale);
+  }
+}
