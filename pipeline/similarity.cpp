@@ -160,10 +160,21 @@ void ScoreAccumulator::reset(Metric m, size_t total_values, double outlier_fract
   keep_ = size_t(std::floor(outlier_fraction * double(total_values) + 1e-9)) + 1;
   heap_.clear();
   heapified_ = false;
+  below_ = 0;
   if (heap_.capacity() < keep_) heap_.reserve(keep_);
 }
 
 bool ScoreAccumulator::add_ssim(const float* values, int n) {
+  // Count first: a candidate that already has more than r values below the bound is dead, and
+  // most candidates of a search die this way, without any heap work.
+  int below = 0;
+  const double bound = bound_;
+  for (int k = 0; k < n; ++k) below += double(values[k]) < bound;
+  below_ += size_t(below);
+  if (below_ >= keep_) {
+    alive_ = false;
+    return false;
+  }
   int i = 0;
   // Fill phase: collect the first keep_ values, then heapify once.
   while (heap_.size() < keep_ && i < n) heap_.push_back(values[i++]);

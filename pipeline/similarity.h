@@ -128,6 +128,7 @@ class ScoreAccumulator {
   double bound_ = -1e300;
   std::vector<float> heap_;
   bool heapified_ = false;
+  size_t below_ = 0;  // values strictly below the bound so far
   double sse_ = 0;
   bool alive_ = true;
 };
