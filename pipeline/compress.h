@@ -3,19 +3,15 @@
 // three-phase schedule, append the material. Shells (client/, server/) call only this.
 #include <nlohmann/json.hpp>
 
-#include <array>
 #include <functional>
 #include <string>
 
 #include "pipeline/btf.h"
 #include "pipeline/codebook.h"
 #include "pipeline/config.h"
+#include "pipeline/schedule.h"
 
 namespace btfvq {
-
-// Sizes of the shared code-books, in the order P1, C, I1, I2, P2, M, P3, P4.
-using CodebookSizes = std::array<size_t, 8>;
-CodebookSizes codebook_sizes(const Codebooks& c);
 
 struct CompressProgress {
   std::string stage;        // "resample", "phase1", "phase2", "phase3", "write"
@@ -37,8 +33,14 @@ struct CompressReport {
   nlohmann::json json;  // texels per phase, code-book sizes after each phase, seconds per stage
 };
 
+// Reads and validates every pipeline setting of `config` (unknown keys are errors) without
+// compressing anything: what a server checks when a job is submitted. Throws ConfigError.
+void validate_pipeline_config(const ParameterDictionary& config);
+
 // Compresses `sample` as material `name` into `db`: shared code-books grow (append-only), one
-// material is appended. Throws InputError for a bad sample, name clash or bad config, CancelledError.
+// material is appended. Throws InputError for a bad sample, name clash or bad config (before any
+// change to `db`), CancelledError. After a CancelledError or a failure during encoding the
+// code-books may have grown: discard `db` (the file on disk is only replaced after success).
 CompressReport compress_material(Database& db, const MeasuredSample& sample, const std::string& name,
                                  const CompressOptions& options);
 
