@@ -33,7 +33,8 @@ namespace {
 // consecutive pairs so that the texel-major scatter/gather touches contiguous runs of memory.
 constexpr size_t kThreads = 2;
 constexpr size_t kBatch = 64;
-constexpr uint64_t kMaxImageBytes = uint64_t(1) << 30;  // one image file larger than this is hostile
+constexpr uint64_t kMaxImageBytes = uint64_t(1) << 30;   // one image file larger than this is hostile
+constexpr uint64_t kMaxSampleBytes = uint64_t(1) << 36;  // 64 GiB: far beyond 1024^2 x 81^2 LDR (25 GiB)
 
 using Bytes = std::vector<unsigned char>;
 
@@ -734,6 +735,14 @@ bool is_sample_path(const std::string& path) {
 MeasuredSample load_sample(const std::string& path, const ProgressFn& progress) {
   const Catalogue c = catalogue(path);
   const Reference ref = first_header(c);
+  // A hostile header (say 100000 x 100000) must be an input error, not an allocation failure.
+  const uint64_t bytes = uint64_t(ref.width) * uint64_t(ref.height) * c.images.size() * 3 *
+                         (c.dynamic == Dynamic::HDR ? sizeof(float) : 1);
+  if (bytes > kMaxSampleBytes)
+    throw InputError(c.images.front().label + ": a " + std::to_string(ref.width) + " x " + std::to_string(ref.height) +
+                     " sample of " + std::to_string(c.images.size()) + " images would need " +
+                     std::to_string(bytes >> 30) + " GiB in memory; the limit is " +
+                     std::to_string(kMaxSampleBytes >> 30) + " GiB");
   MeasuredSample s(ref.width, ref.height, c.views, std::vector<std::vector<Direction>>(c.views.size(), c.lights),
                    c.dynamic);
   if (s.is_hdr())

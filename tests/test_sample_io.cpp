@@ -103,7 +103,7 @@ void check_load_error(const fs::path& path, const std::string& needle) {
     load_sample(path.string());
     FAIL("expected InputError for " << path);
   } catch (const InputError& e) {
-    INFO("message: " << e.what());
+    INFO("message: " << std::string(e.what()));
     CHECK(std::string(e.what()).find(needle) != std::string::npos);
   }
 }
@@ -146,7 +146,11 @@ TEST_CASE("a Bonn sample written as a zip and as a directory loads back within J
 
   for (const char* name : {"s.zip", "s"}) {
     INFO(name);
-    const MeasuredSample loaded = load_sample((dir / name).string());
+    size_t loaded_done = 0, loaded_total = 0;
+    const MeasuredSample loaded =
+        load_sample((dir / name).string(), [&](size_t done, size_t total) { loaded_done = done, loaded_total = total; });
+    CHECK(loaded_done == 6561);
+    CHECK(loaded_total == 6561);
     check_same_geometry(loaded);
     CHECK(loaded.dynamic() == Dynamic::LDR);
     int max_error = 0;
@@ -415,4 +419,40 @@ TEST_CASE("`btfvq info` describes a written zip") {
   const int bad = test::run_command("'" + (test::bin_dir() / "btfvq").string() + "' info '" + (dir / "notes.txt").string() + "'", &out);
   CHECK(bad == 2);
   CHECK(out.find("is not a BTF sample") != std::string::npos);
+}
+
+namespace {
+
+uint32_t crc32(const std::string& bytes) {
+  uint32_t c = 0xFFFFFFFFu;
+  for (unsigned char b : bytes) {
+    c ^= b;
+    for (int k = 0; k < 8; ++k) c = (c >> 1) ^ (0xEDB88320u & (0u - (c & 1u)));
+  }
+  return ~c;
+}
+
+std::string big_endian(uint32_t v) {
+  return {char(v >> 24), char((v >> 16) & 0xFF), char((v >> 8) & 0xFF), char(v & 0xFF)};
+}
+
+// A PNG whose header claims width x height pixels but holds (almost) no pixel data.
+std::string png_header_only(uint32_t width, uint32_t height) {
+  const std::string ihdr = "IHDR" + big_endian(width) + big_endian(height) + std::string("\x08\x02\x00\x00\x00", 5);
+  const std::string idat = "IDAT\x78\x9c", iend = "IEND";  // the start of a zlib stream, then nothing
+  return std::string("\x89PNG\r\n\x1a\n", 8) + big_endian(13) + ihdr + big_endian(crc32(ihdr)) + big_endian(2) + idat +
+         big_endian(crc32(idat)) + big_endian(0) + iend + big_endian(crc32(iend));
+}
+
+}  // namespace
+
+TEST_CASE("an image header claiming a gigantic size is an input error, not an allocation failure") {
+  const fs::path d = test::scratch_dir("huge");
+  std::ofstream(d / "tl010_pl000_tv010_pv000.png", std::ios::binary) << png_header_only(200000, 200000);
+  check_load_error(d, "tl010_pl000_tv010_pv000.png");
+  check_load_error(d, "GiB");
+  // A plausible size with no pixel data behind it is a truncated image.
+  const fs::path e = test::scratch_dir("nodata");
+  std::ofstream(e / "tl010_pl000_tv010_pv000.png", std::ios::binary) << png_header_only(8, 8);
+  check_load_error(e, "tl010_pl000_tv010_pv000.png");
 }
