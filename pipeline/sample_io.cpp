@@ -270,7 +270,7 @@ void list_directory(Catalogue& c) {
   for (; it != end; it.increment(ec)) {
     if (ec) throw InputError(c.source + ": cannot list directory: " + ec.message());
     if (!it->is_regular_file(ec)) continue;
-    const fs::path rel = fs::relative(it->path(), c.source, ec);
+    const fs::path rel = it->path().lexically_relative(c.source);  // fs::relative resolves links: slow
     add_image(c, rel.generic_string(), it->path().string(), it->path(), 0);
   }
 }
