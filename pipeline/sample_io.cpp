@@ -673,6 +673,20 @@ struct TemporaryOutput {
   }
 };
 
+// The inverse of scatter for a run of consecutive pairs: store[t][i] -> image i, texel t.
+template <class T>
+void gather(const T* __restrict store, size_t texel_stride, size_t count, T* __restrict batch, size_t image_stride,
+            size_t t0, size_t t1) {
+  constexpr size_t kAhead = 4, kLine = 64 / sizeof(T);
+  for (size_t t = t0; t < t1; ++t) {
+    if (t + kAhead < t1)
+      for (size_t k = 0; k < count * 3; k += kLine) __builtin_prefetch(store + (t + kAhead) * texel_stride + k, 0);
+    const T* __restrict texel = store + t * texel_stride;
+    T* __restrict dst = batch + t * 3;
+    for (size_t i = 0; i < count; ++i) copy_rgb(texel + i * 3, dst + i * image_stride);
+  }
+}
+
 template <class T>
 void write_images(const MeasuredSample& s, const std::vector<T>& store, const std::vector<std::string>& names,
                   const fs::path& target, bool zip, const WriteOptions& options) {
@@ -690,11 +704,8 @@ void write_images(const MeasuredSample& s, const std::vector<T>& store, const st
   for (size_t start = 0; start < pairs; start += batch_size) {
     const size_t count = std::min(batch_size, pairs - start);
     parallel_for(kThreads, [&](size_t part) {
-      for (size_t t = texels * part / kThreads; t < texels * (part + 1) / kThreads; ++t) {
-        const T* texel = store.data() + (t * pairs + start) * 3;
-        T* dst = batch.data() + t * 3;
-        for (size_t i = 0; i < count; ++i) copy_rgb(texel + i * 3, dst + i * image_values);
-      }
+      gather(store.data() + start * 3, pairs * 3, count, batch.data(), image_values, texels * part / kThreads,
+             texels * (part + 1) / kThreads);
     });
     parallel_for(count, [&](size_t i) {
       encoded[i] = encode(names[start + i], batch.data() + i * image_values, s.width(), s.height(), options.jpeg_quality);

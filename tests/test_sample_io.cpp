@@ -473,3 +473,17 @@ TEST_CASE("an image header claiming a gigantic size is an input error, not an al
   std::ofstream(e / "tl010_pl000_tv010_pv000.png", std::ios::binary) << png_header_only(8, 8);
   check_load_error(e, "tl010_pl000_tv010_pv000.png");
 }
+
+TEST_CASE("a write that fails half-way removes its temporary output and leaves no result") {
+  const fs::path dir = test::scratch_dir("halfway");
+  const MeasuredSample s = bonn_test_sample();
+  WriteOptions cancel_after_first_batch{90, [](size_t done, size_t) {
+                                          if (done > 0) throw CancelledError("stop");
+                                        }};
+  CHECK_THROWS_AS(write_sample(s, (dir / "s.zip").string(), cancel_after_first_batch), CancelledError);
+  CHECK_THROWS_AS(write_sample(s, (dir / "s").string(), cancel_after_first_batch), CancelledError);
+  CHECK(fs::is_empty(dir));
+  // Loading is cancelled the same way.
+  CHECK_THROWS_AS(load_sample(written_zip().string(), [](size_t, size_t) { throw CancelledError("stop"); }),
+                  CancelledError);
+}
