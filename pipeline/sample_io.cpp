@@ -10,7 +10,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdio>
-#include <cstring>
+#include <ctime>
 #include <exception>
 #include <filesystem>
 #include <fstream>
