@@ -10,7 +10,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdio>
-#include <cstring>
+#include <ctime>
 #include <exception>
 #include <filesystem>
 #include <fstream>
@@ -33,7 +33,8 @@ namespace {
 // consecutive pairs so that the texel-major scatter/gather touches contiguous runs of memory.
 constexpr size_t kThreads = 2;
 constexpr size_t kBatch = 64;
-constexpr uint64_t kMaxImageBytes = uint64_t(1) << 30;  // one image file larger than this is hostile
+constexpr uint64_t kMaxImageBytes = uint64_t(1) << 30;   // one image file larger than this is hostile
+constexpr uint64_t kMaxSampleBytes = uint64_t(1) << 36;  // 64 GiB: far beyond 1024^2 x 81^2 LDR (25 GiB)
 
 using Bytes = std::vector<unsigned char>;
 
@@ -269,7 +270,7 @@ void list_directory(Catalogue& c) {
   for (; it != end; it.increment(ec)) {
     if (ec) throw InputError(c.source + ": cannot list directory: " + ec.message());
     if (!it->is_regular_file(ec)) continue;
-    const fs::path rel = fs::relative(it->path(), c.source, ec);
+    const fs::path rel = it->path().lexically_relative(c.source);  // fs::relative resolves links: slow
     add_image(c, rel.generic_string(), it->path().string(), it->path(), 0);
   }
 }
@@ -461,6 +462,15 @@ inline void copy_rgb(const T* from, T* to) {
   to[2] = from[2];
 }
 
+// Images of a batch lie one after another in memory. Sizes like 256 x 256 x 3 are multiples of 4 KiB,
+// so the batch's images would all map to the same L1 cache sets while a texel is scattered across
+// them; one cache line of padding per image staggers them (this made the scatter several times faster).
+template <class T>
+size_t padded_image_size(size_t texels) {
+  constexpr size_t line = 64 / sizeof(T);
+  return (texels * 3 + line - 1) / line * line + line;
+}
+
 struct Reference {
   std::string label;
   int width = 0, height = 0;
@@ -482,13 +492,31 @@ void decode(const ImageEntry& e, const Bytes& data, const Reference& ref, T* out
   image.read(out);
 }
 
+// Moves a decoded batch into the texel-major store: texel t of image i goes to store[t][offset[i]].
+// The store is far larger than any cache and each texel's run lies ~20 KB from the next, so the
+// destination of a texel a few steps ahead is prefetched.
+template <class T>
+void scatter(const T* __restrict batch, size_t image_stride, size_t count, const size_t* __restrict offset,
+             T* __restrict store, size_t texel_stride, size_t t0, size_t t1) {
+  const size_t lo = *std::min_element(offset, offset + count), hi = *std::max_element(offset, offset + count) + 3;
+  const bool compact = (hi - lo) * sizeof(T) <= 4096;
+  constexpr size_t kAhead = 4, kLine = 64 / sizeof(T);
+  for (size_t t = t0; t < t1; ++t) {
+    if (compact && t + kAhead < t1)
+      for (size_t k = lo; k < hi; k += kLine) __builtin_prefetch(store + (t + kAhead) * texel_stride + k, 1);
+    T* __restrict texel = store + t * texel_stride;
+    const T* __restrict src = batch + t * 3;
+    for (size_t i = 0; i < count; ++i) copy_rgb(src + i * image_stride, texel + offset[i]);
+  }
+}
+
 template <class T>
 void load_pixels(const Catalogue& c, const Reference& ref, MeasuredSample& s, std::vector<T>& store,
                  const ProgressFn& progress) {
   const size_t n = c.images.size(), texels = s.texel_count(), pairs = s.pair_count();
   // Images are decoded whole (OpenImageIO's strided decode copies pixel by pixel: far slower), then
   // moved into the texel-major store a batch at a time, so each texel's run is visited once per batch.
-  const size_t batch_size = std::min(kBatch, n), image_values = texels * 3;
+  const size_t batch_size = std::min(kBatch, n), image_values = padded_image_size<T>(texels);
   std::vector<T> batch(batch_size * image_values);
   std::vector<Bytes> data(batch_size);
   std::vector<size_t> offset(batch_size);
@@ -507,11 +535,8 @@ void load_pixels(const Catalogue& c, const Reference& ref, MeasuredSample& s, st
     });
     for (size_t i = 0; i < count; ++i) offset[i] = c.images[start + i].pair_index * 3;
     parallel_for(kThreads, [&](size_t part) {
-      for (size_t t = texels * part / kThreads; t < texels * (part + 1) / kThreads; ++t) {
-        T* texel = store.data() + t * pairs * 3;
-        const T* src = batch.data() + t * 3;
-        for (size_t i = 0; i < count; ++i) copy_rgb(src + i * image_values, texel + offset[i]);
-      }
+      scatter(batch.data(), image_values, count, offset.data(), store.data(), pairs * 3, texels * part / kThreads,
+              texels * (part + 1) / kThreads);
     });
     if (progress) progress(start + count, n);
   }
@@ -648,12 +673,26 @@ struct TemporaryOutput {
   }
 };
 
+// The inverse of scatter for a run of consecutive pairs: store[t][i] -> image i, texel t.
+template <class T>
+void gather(const T* __restrict store, size_t texel_stride, size_t count, T* __restrict batch, size_t image_stride,
+            size_t t0, size_t t1) {
+  constexpr size_t kAhead = 4, kLine = 64 / sizeof(T);
+  for (size_t t = t0; t < t1; ++t) {
+    if (t + kAhead < t1)
+      for (size_t k = 0; k < count * 3; k += kLine) __builtin_prefetch(store + (t + kAhead) * texel_stride + k, 0);
+    const T* __restrict texel = store + t * texel_stride;
+    T* __restrict dst = batch + t * 3;
+    for (size_t i = 0; i < count; ++i) copy_rgb(texel + i * 3, dst + i * image_stride);
+  }
+}
+
 template <class T>
 void write_images(const MeasuredSample& s, const std::vector<T>& store, const std::vector<std::string>& names,
                   const fs::path& target, bool zip, const WriteOptions& options) {
   const size_t pairs = s.pair_count(), texels = s.texel_count();
   const size_t batch_size = std::min(kBatch, pairs);
-  const size_t image_values = texels * 3;
+  const size_t image_values = padded_image_size<T>(texels);
   std::vector<T> batch(batch_size * image_values);
   std::vector<Bytes> encoded(batch_size);
   std::unique_ptr<ZipWriter> writer;
@@ -665,11 +704,8 @@ void write_images(const MeasuredSample& s, const std::vector<T>& store, const st
   for (size_t start = 0; start < pairs; start += batch_size) {
     const size_t count = std::min(batch_size, pairs - start);
     parallel_for(kThreads, [&](size_t part) {
-      for (size_t t = texels * part / kThreads; t < texels * (part + 1) / kThreads; ++t) {
-        const T* texel = store.data() + (t * pairs + start) * 3;
-        T* dst = batch.data() + t * 3;
-        for (size_t i = 0; i < count; ++i) copy_rgb(texel + i * 3, dst + i * image_values);
-      }
+      gather(store.data() + start * 3, pairs * 3, count, batch.data(), image_values, texels * part / kThreads,
+             texels * (part + 1) / kThreads);
     });
     parallel_for(count, [&](size_t i) {
       encoded[i] = encode(names[start + i], batch.data() + i * image_values, s.width(), s.height(), options.jpeg_quality);
@@ -710,6 +746,14 @@ bool is_sample_path(const std::string& path) {
 MeasuredSample load_sample(const std::string& path, const ProgressFn& progress) {
   const Catalogue c = catalogue(path);
   const Reference ref = first_header(c);
+  // A hostile header (say 100000 x 100000) must be an input error, not an allocation failure.
+  const uint64_t bytes = uint64_t(ref.width) * uint64_t(ref.height) * c.images.size() * 3 *
+                         (c.dynamic == Dynamic::HDR ? sizeof(float) : 1);
+  if (bytes > kMaxSampleBytes)
+    throw InputError(c.images.front().label + ": a " + std::to_string(ref.width) + " x " + std::to_string(ref.height) +
+                     " sample of " + std::to_string(c.images.size()) + " images would need " +
+                     std::to_string(bytes >> 30) + " GiB in memory; the limit is " +
+                     std::to_string(kMaxSampleBytes >> 30) + " GiB");
   MeasuredSample s(ref.width, ref.height, c.views, std::vector<std::vector<Direction>>(c.views.size(), c.lights),
                    c.dynamic);
   if (s.is_hdr())
