@@ -348,11 +348,13 @@ bool Encoder::evaluate_composite(const Query& q, const PlaneRef* planes, int np,
 
 namespace {
 
-// Candidate order: the `k` best by proxy first, then the others in index order.
+// Candidate order: the `k` best by proxy first, then the others in index order; with a limit, only
+// the `limit` best by proxy (an approximate search, see docs/similarity.md).
 template <class Proxy>
-void order_candidates(uint32_t n, int k, Proxy proxy, std::vector<float>& prox, std::vector<uint32_t>& order,
-                      std::vector<uint8_t>& tried) {
+void order_candidates(uint32_t n, int k, int limit, Proxy proxy, std::vector<float>& prox,
+                      std::vector<uint32_t>& order, std::vector<uint8_t>& tried) {
   order.clear();
+  if (limit > 0) k = std::max(k, limit);
   if (k <= 0 || n <= uint32_t(k)) {
     for (uint32_t e = 0; e < n; ++e) order.push_back(e);
     return;
@@ -367,6 +369,10 @@ void order_candidates(uint32_t n, int k, Proxy proxy, std::vector<float>& prox, 
   for (int i = 0; i < k; ++i) {
     order.push_back(idx[size_t(i)]);
     tried[idx[size_t(i)]] = 1;
+  }
+  if (limit > 0) {
+    order.resize(size_t(limit));
+    return;
   }
   for (uint32_t e = 0; e < n; ++e)
     if (!tried[e]) order.push_back(e);
@@ -435,7 +441,7 @@ Encoder::Match Encoder::search_composite(const Query& q, int level, double thres
   const int ns = int(qsig.size());
   const std::vector<float>& sig = level == 4 ? p4_sig_ : level == 3 ? p3_sig_ : m_sig_;
   order_candidates(
-      n, settings_.pruning ? settings_.proxy_candidates : 0,
+      n, settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
       [&](uint32_t e) { return scaled_distance(qsig.data(), sig.data() + size_t(e) * size_t(ns), ns); }, ctx.proxy,
       ctx.order, ctx.tried);
   std::vector<PlaneRef> planes;
@@ -501,7 +507,7 @@ Encoder::Match Encoder::search_p2(const Query& q, double threshold_score, Ctx& c
   std::vector<float> qsig(static_cast<size_t>(na));
   for (int a = 0; a < na; ++a) qsig[size_t(a)] = float(q.at(0, 0).row_sum(a, nb) / nb) - channel_offset(dyn_, 0);
   order_candidates(
-      n, settings_.pruning ? settings_.proxy_candidates : 0,
+      n, settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
       [&](uint32_t e) { return plain_distance(qsig.data(), p2_sig_.data() + size_t(e) * size_t(na), na); },
       ctx.proxy, ctx.order, ctx.tried);
   const Affine ax = unit_affine(dyn_, 0, q.unit);
@@ -528,7 +534,7 @@ Encoder::Match Encoder::search_i2(const Query& q, double threshold_score, Ctx& c
   for (int c = 1; c <= 2; ++c)
     for (int a = 0; a < na; ++a) qsig.push_back(float(q.at(0, c).row_sum(a, nb) / nb) - channel_offset(dyn_, c));
   order_candidates(
-      n, settings_.pruning ? settings_.proxy_candidates : 0,
+      n, settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
       [&](uint32_t e) { return plain_distance(qsig.data(), i2_sig_.data() + size_t(e) * size_t(2 * na), 2 * na); },
       ctx.proxy, ctx.order, ctx.tried);
   auto eval = [&](uint32_t e, double bound, double* sc, float* s) {

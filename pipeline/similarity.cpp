@@ -23,6 +23,7 @@ SimilaritySettings SimilaritySettings::from(const ParameterDictionary& d) {
   s.window_radius = d.integer("similarity.window_radius", 0, 5);
   s.pruning = d.boolean("similarity.pruning");
   s.proxy_candidates = d.integer("similarity.proxy_candidates", 0, 1 << 20);
+  s.candidate_limit = d.integer("similarity.candidate_limit", 0, 1 << 20);
   return s;
 }
 

@@ -32,6 +32,7 @@ struct SimilaritySettings {
   int window_radius = 1;           // 1 -> 3 x 3 windows (3 samples along beta for 1D slices)
   bool pruning = true;             // abandon candidates early; false = exhaustive (for tests)
   int proxy_candidates = 16;       // candidates tried first, in order of a cheap proxy distance
+  int candidate_limit = 0;         // > 0: evaluate only this many best-by-proxy candidates (approximate)
 
   // Reads the "similarity" section; unknown keys are reported by the dictionary's check_unused().
   static SimilaritySettings from(const ParameterDictionary& d);

@@ -288,3 +288,19 @@ TEST_CASE("MSE: the LAESA pivot bound and partial sums choose exactly what the e
     CHECK(p.scale == q.scale);
   }
 }
+
+TEST_CASE("an approximate search (candidate_limit) evaluates fewer candidates and keeps the guarantee") {
+  SyntheticMaterial mat(8, 8);
+  SimilaritySettings exact, approx;
+  approx.candidate_limit = 1;
+  Codebooks a(mat.grid), b(mat.grid);
+  Encoder ea(a, Dynamic::LDR, Thresholds{}, exact), eb(b, Dynamic::LDR, Thresholds{}, approx);
+  for (uint32_t id = 0; id < 12; ++id) {
+    const auto t = mat.texel(id * 7 % 64);
+    ea.encode_growing(t.data());
+    const P6Entry e = eb.encode_growing(t.data());
+    CHECK(reconstruction_dissimilarity(b, Dynamic::LDR, approx, t, e) <= Thresholds{}.p4 + 2e-4);
+  }
+  CHECK(eb.stats().comparisons < ea.stats().comparisons);
+  CHECK(total_entries(b) >= total_entries(a));
+}
