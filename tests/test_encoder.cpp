@@ -304,3 +304,22 @@ TEST_CASE("an approximate search (candidate_limit) evaluates fewer candidates an
   CHECK(eb.stats().comparisons < ea.stats().comparisons);
   CHECK(total_entries(b) >= total_entries(a));
 }
+
+TEST_CASE("black texels (LDR 16/128/128, HDR zero) encode and reconstruct exactly") {
+  AngularGrid g;
+  const size_t n = g.samples();
+  for (Dynamic dyn : {Dynamic::LDR, Dynamic::HDR}) {
+    std::vector<float> black(3 * n);
+    for (size_t i = 0; i < n; ++i) {
+      black[i] = dyn == Dynamic::LDR ? 16.0f : 0.0f;
+      black[n + i] = black[2 * n + i] = dyn == Dynamic::LDR ? 128.0f : 50.0f;
+    }
+    Codebooks k(g);
+    Encoder enc(k, dyn, Thresholds{}, SimilaritySettings{});
+    const P6Entry e = enc.encode_growing(black.data());
+    std::vector<float> recon(3 * n);
+    reconstruct_texel(k, dyn, e.index, e.scale, recon.data());
+    for (size_t i = 0; i < 3 * n; i += 97) CHECK(recon[i] == doctest::Approx(black[i]).epsilon(1e-4));
+    CHECK(enc.encode_frozen(black.data()).index == e.index);
+  }
+}
