@@ -575,10 +575,18 @@ Encoder::Match Encoder::search_p1(const float* row, float unit, double threshold
   for (uint32_t e = 0; e < n; ++e) ctx.order[e] = e;
   // P1 rows are densities: the P2 scale multiplies Y itself (offset included), so the best scale
   // is the raw least-squares one.
+  // With r = 0 (fewer than 50 samples per row) the score is the minimum: stop at the first value
+  // below the bound. Same values as the general path, so the same choices.
+  const bool minimum = settings_.metric == Metric::SSIM && g1_.radius() == 1 &&
+                       size_t(std::floor(settings_.outlier_fraction * double(nb) + 1e-9)) == 0;
   auto eval = [&](uint32_t e, double bound, double* sc, float* s) {
     const ChannelView y = p1_store_.view(e, 0);
     const double sy = y.sumsq > 0 ? std::max(0.0, double(dot(x.v, y.v, nb)) / y.sumsq) : 0.0;
     const Affine ay{o * (1.0f - unit), float(unit * sy)};
+    if (minimum) {
+      *s = float(sy);
+      return min_ssim_row(g1_, x, ax, y, ay, ctx.k.c1[0], ctx.k.c2[0], bound, sc);
+    }
     ctx.acc.reset(settings_.metric, size_t(nb), settings_.outlier_fraction, bound);
     if (!accumulate_channel(g1_, settings_.metric, x, ax, y, ay, ctx.k.c1[0], ctx.k.c2[0], ctx.acc,
                             ctx.scratch.data()))

@@ -262,6 +262,30 @@ bool accumulate_channel(const WindowGeometry& g, Metric metric, const ChannelVie
   return acc.add_ssim(ssim, n);
 }
 
+bool min_ssim_row(const WindowGeometry& g, const ChannelView& x, Affine ax, const ChannelView& y, Affine ay, float c1,
+                  float c2, double bound, double* score) {
+  const int n = g.cols();
+  const float bxy = ax.b * ay.b, bxx = ax.b * ax.b, byy = ay.b * ay.b;
+  float lowest = 2.0f;
+  for (int i = 0; i < n; ++i) {
+    // Window sum of products in box3's order, so that every value equals accumulate_channel's.
+    float exy;
+    if (n == 1) exy = x.v[0] * y.v[0];
+    else if (i == 0) exy = x.v[0] * y.v[0] + x.v[1] * y.v[1];
+    else if (i == n - 1) exy = x.v[n - 2] * y.v[n - 2] + x.v[n - 1] * y.v[n - 1];
+    else exy = x.v[i - 1] * y.v[i - 1] + x.v[i] * y.v[i] + x.v[i + 1] * y.v[i + 1];
+    const float mx = ax.a + ax.b * x.mean[i];
+    const float my = ay.a + ay.b * y.mean[i];
+    const float cov = bxy * (exy * g.inv_count(i) - x.mean[i] * y.mean[i]);
+    const float vx = bxx * x.var[i], vy = byy * y.var[i];
+    const float v = ((2 * mx * my + c1) * (2 * cov + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2));
+    if (double(v) < bound) return false;
+    lowest = std::min(lowest, v);
+  }
+  *score = lowest;
+  return true;
+}
+
 double slice_similarity(const SimilaritySettings& s, Dynamic dyn, const WindowGeometry& g, const float* x,
                         const float* y, int planes, int first_channel, int channels, float luminance_range) {
   const SsimConstants k = SsimConstants::make(s, dyn, luminance_range);

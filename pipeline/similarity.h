@@ -139,6 +139,12 @@ class ScoreAccumulator {
 bool accumulate_channel(const WindowGeometry& g, Metric metric, const ChannelView& x, Affine ax, const ChannelView& y,
                         Affine ay, float c1, float c2, ScoreAccumulator& acc, float* scratch);
 
+// 1D slices (rows == 1, radius 1) whose score is the minimum (r = 0): the same values as
+// accumulate_channel, but stops at the first one below `bound` (returns false). On success *score is
+// the minimum.
+bool min_ssim_row(const WindowGeometry& g, const ChannelView& x, Affine ax, const ChannelView& y, Affine ay, float c1,
+                  float c2, double bound, double* score);
+
 // Converts a score into a dissimilarity d (SSIM: 1 - score; MSE: mean squared error) and back.
 double score_to_dissimilarity(Metric m, double score, size_t total_values);
 double dissimilarity_to_score(Metric m, double d, size_t total_values);
