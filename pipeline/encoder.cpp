@@ -86,7 +86,21 @@ struct Encoder::Query {
   std::vector<ChannelView> views;  // planes x channels
   std::vector<float> stats;        // owned window statistics, when not borrowed from a parent
   size_t values = 0;
+  // SSIM accumulation order of the planes: most contrast first, where a worse candidate shows its
+  // low values soonest and is abandoned early (the percentile does not depend on the order).
+  std::vector<int> order;
   const ChannelView& at(int p, int c) const { return views[size_t(p * channels + (c - first))]; }
+  void order_planes(int n) {
+    std::vector<double> contrast(size_t(planes), 0.0);
+    for (int p = 0; p < planes; ++p)
+      for (int c = 0; c < channels; ++c) {
+        const ChannelView& v = views[size_t(p * channels + c)];
+        contrast[size_t(p)] += v.sumsq - v.sum * v.sum / n;
+      }
+    order.resize(size_t(planes));
+    for (int p = 0; p < planes; ++p) order[size_t(p)] = p;
+    std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return contrast[size_t(a)] > contrast[size_t(b)]; });
+  }
 };
 
 namespace {
@@ -331,8 +345,10 @@ bool Encoder::evaluate_composite(const Query& q, const PlaneRef* planes, int np,
   }
   const double s = den > 1e-20 ? std::max(0.0, num / den) : 1.0;
   ctx.acc.reset(settings_.metric, q.values, settings_.outlier_fraction, bound);
-  for (int j = 0; j < np; ++j)
+  const bool reorder = settings_.metric == Metric::SSIM && int(q.order.size()) == np;
+  for (int jj = 0; jj < np; ++jj)
     for (int c = 0; c < 3; ++c) {
+      const int j = reorder ? q.order[size_t(jj)] : jj;
       const ChannelView& x = q.at(j, c);
       const ChannelView y = c == 0 ? p2_store_.view(planes[j].p2, 0) : i2_store_.view(planes[j].i2, c - 1);
       const Affine ax = unit_affine(dyn_, c, q.unit);
@@ -697,6 +713,7 @@ Encoder::Match Encoder::encode_p4(const float* texel_in, Ctx& ctx, bool exact) {
       float* st = q.stats.data() + size_t(2 * (p * 3 + c) * n);
       q.views.push_back(make_view(g2_, texel.data() + size_t(c) * samples + size_t(p * n), st, st + n));
     }
+  q.order_planes(n);
   if (!exact) {
     const Match found = search_composite(q, 4, bound_for(thresholds_.p4, q.values), ctx);
     if (found.index >= 0) return found;
@@ -707,7 +724,8 @@ Encoder::Match Encoder::encode_p4(const float* texel_in, Ctx& ctx, bool exact) {
     std::vector<float> sc(idx.size());
     double bright = 0;
     for (int p = 0; p < grid_.n_phi_v; ++p) {
-      const Query sub = sub_query(q, p * grid_.n_theta_v, grid_.n_theta_v);
+      Query sub = sub_query(q, p * grid_.n_theta_v, grid_.n_theta_v);
+      sub.order_planes(n);
       const Match r = encode_p3(sub, ctx, ex);
       idx[size_t(p)] = uint32_t(r.index);
       sc[size_t(p)] = r.scale;
@@ -1001,6 +1019,7 @@ P6Entry Encoder::encode_frozen(const float* texel_in) const {
       float* st = q.stats.data() + size_t(2 * (p * 3 + c) * n);
       q.views.push_back(make_view(g2_, texel.data() + size_t(c) * samples + size_t(p * n), st, st + n));
     }
+  q.order_planes(n);
   const Match best = search_composite(q, 4, kNoBound, ctx);
   P6Entry r;
   r.index = uint32_t(best.index);
