@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "pipeline/error.h"
 
@@ -163,15 +164,14 @@ void ScoreAccumulator::reset(Metric m, size_t total_values, double outlier_fract
   alive_ = true;
   sse_ = 0;
   keep_ = size_t(std::floor(outlier_fraction * double(total_values) + 1e-9)) + 1;
-  heap_.clear();
-  heapified_ = false;
+  used_ = 0;
   below_ = 0;
-  if (heap_.capacity() < keep_) heap_.reserve(keep_);
+  tau_ = std::numeric_limits<float>::infinity();
 }
 
 bool ScoreAccumulator::add_ssim(const float* values, int n) {
   // Count first: a candidate that already has more than r values below the bound is dead, and
-  // most candidates of a search die this way, without any heap work.
+  // most candidates of a search die this way.
   int below = 0;
   const double bound = bound_;
   for (int k = 0; k < n; ++k) below += double(values[k]) < bound;
@@ -180,35 +180,23 @@ bool ScoreAccumulator::add_ssim(const float* values, int n) {
     alive_ = false;
     return false;
   }
-  int i = 0;
-  // Fill phase: collect the first keep_ values, then heapify once.
-  while (heap_.size() < keep_ && i < n) heap_.push_back(values[i++]);
-  if (heap_.size() == keep_ && i > 0 && !heapified_) {
-    std::make_heap(heap_.begin(), heap_.end());
-    heapified_ = true;
+  // Batched selection: keep only values below tau (>= the (r+1)-th smallest so far); when the
+  // buffer reaches 2 (r+1) values, select the r+1 smallest and lower tau to the largest of them.
+  if (buffer_.size() < used_ + size_t(n)) buffer_.resize(used_ + size_t(n));
+  float* buf = buffer_.data();
+  size_t m = used_;
+  const float tau = tau_;
+  for (int k = 0; k < n; ++k) {
+    buf[m] = values[k];
+    m += values[k] < tau;
   }
-  if (i < n) {
-    float* h = heap_.data();
-    const size_t k = keep_;
-    for (; i < n; ++i) {
-      const float v = values[i];
-      if (!(v < h[0])) continue;
-      // Replace the largest kept value and sift it down.
-      size_t at = 0;
-      for (;;) {
-        size_t child = 2 * at + 1;
-        if (child >= k) break;
-        if (child + 1 < k && h[child + 1] > h[child]) ++child;
-        if (!(h[child] > v)) break;
-        h[at] = h[child];
-        at = child;
-      }
-      h[at] = v;
-    }
+  used_ = m;
+  if (used_ >= 2 * keep_) {
+    std::nth_element(buf, buf + (keep_ - 1), buf + used_);
+    tau_ = buf[keep_ - 1];
+    used_ = keep_;
   }
-  // More than r values strictly below the bound: the percentile is below the bound.
-  if (heap_.size() == keep_ && double(heap_.front()) < bound_) alive_ = false;
-  return alive_;
+  return true;
 }
 
 bool ScoreAccumulator::add_squared_error(double sum) {
@@ -219,9 +207,12 @@ bool ScoreAccumulator::add_squared_error(double sum) {
 
 double ScoreAccumulator::score() const {
   if (metric_ == Metric::MSE) return -sse_;
-  if (heap_.empty()) return 1.0;
-  // Fewer values than keep_ (only when total_values was overstated): the largest kept one.
-  return double(*std::max_element(heap_.begin(), heap_.end()));
+  if (used_ == 0) return 1.0;
+  // The (r+1)-th smallest value; with fewer values (total_values overstated) the largest one.
+  float* buf = buffer_.data();
+  const size_t k = std::min(keep_, used_) - 1;
+  std::nth_element(buf, buf + k, buf + used_);
+  return double(buf[k]);
 }
 
 double score_to_dissimilarity(Metric m, double score, size_t total_values) {

@@ -111,8 +111,9 @@ struct Affine {
   float a = 0, b = 1;
 };
 
-// The score of one candidate, accumulated plane by plane: SSIM keeps the r+1 smallest values in a
-// max-heap (its top is the percentile); MSE keeps the sum of squared differences. Scores are
+// The score of one candidate, accumulated plane by plane: SSIM keeps the values that can still be
+// among the r+1 smallest (batched selection) and counts those below the bound; MSE keeps the sum of
+// squared differences. Scores are
 // "higher is better": SSIM percentile, or minus the sum of squares.
 class ScoreAccumulator {
  public:
@@ -127,8 +128,9 @@ class ScoreAccumulator {
   Metric metric_ = Metric::SSIM;
   size_t keep_ = 1;
   double bound_ = -1e300;
-  std::vector<float> heap_;
-  bool heapified_ = false;
+  mutable std::vector<float> buffer_;  // (score() selects in place) candidates for the (r+1)-th smallest value: used_ of them
+  size_t used_ = 0;
+  float tau_ = 0;     // values >= tau_ cannot be among the r+1 smallest
   size_t below_ = 0;  // values strictly below the bound so far
   double sse_ = 0;
   bool alive_ = true;
