@@ -808,7 +808,9 @@ Encoder::Match Encoder::encode_m(const Query& q, Ctx& ctx, bool exact) {
   const int n = g2_.size();
   const float o0 = channel_offset(dyn_, 0);
   const double bright = q.at(0, 0).sum / n - o0;
-  const float norm = bright > 1e-6 * normalized_brightness(dyn_) ? float(bright) / normalized_brightness(dyn_) : 1.0f;
+  // Slices darker than 1% of the target stay as they are: normalizing them would amplify their
+  // chroma noise (LDR chroma scales with RGB) far outside the usual range of C.
+  const float norm = bright >= 0.01 * normalized_brightness(dyn_) ? float(bright) / normalized_brightness(dyn_) : 1.0f;
   std::vector<float> v(static_cast<size_t>(3 * n)), st(static_cast<size_t>(6 * n));
   for (int c = 0; c < 3; ++c) {
     const float* x = q.at(0, c).v;
