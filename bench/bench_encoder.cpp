@@ -1,7 +1,7 @@
 // Encodes a material with the default pipeline config and reports texels/s per phase (wall and
 // CPU), code-book sizes and the dissimilarity of the result.
-//   bench_encoder synth [W] [ssim|mse]   synthetic W x W material (tests/support/synthetic_texels.h)
-//   bench_encoder alu DIR [ssim|mse]     node values of DIR = .../testdata/btfbase/alu (64 x 64, the
+//   bench_encoder synth [W] [ssim|mse|JSON]   synthetic W x W material (tests/support/synthetic_texels.h)
+//   bench_encoder alu DIR [ssim|mse|JSON]     node values of DIR = .../testdata/btfbase/alu (64 x 64, the
 //                                        original compressor's database: already through MLVQ once)
 #include <cstdio>
 #include <cstdlib>
@@ -83,7 +83,9 @@ int main(int argc, char** argv) {
     return 2;
   }
   auto cfg = ParameterDictionary::embedded_default("pipeline");
-  if (metric) cfg.merge(ParameterDictionary::parse(std::string("{\"similarity\": {\"metric\": \"") + metric + "\"}}", "args"));
+  // The last argument: a metric name, or a JSON object of pipeline config overrides.
+  if (metric && metric[0] == '{') cfg.merge(ParameterDictionary::parse(metric, "args"));
+  else if (metric) cfg.merge(ParameterDictionary::parse(std::string("{\"similarity\": {\"metric\": \"") + metric + "\"}}", "args"));
   const SimilaritySettings sim = SimilaritySettings::from(cfg);
   const Thresholds thr = Thresholds::from(cfg, sim.metric);
   const ScheduleSettings sch = ScheduleSettings::from(cfg);

@@ -53,6 +53,10 @@ Thresholds Thresholds::from(const ParameterDictionary& d, Metric metric) {
   return metric == Metric::SSIM ? ssim : mse;
 }
 
+Thresholds Thresholds::from(const ParameterDictionary& d) {
+  return from(d, SimilaritySettings::from(d).metric);
+}
+
 Thresholds Thresholds::relaxed(double f) const {
   if (!(f >= 0) || !std::isfinite(f)) throw ConfigError("threshold relax factor must be a finite number >= 0");
   return {p4 * f, p3 * f, m * f, p2 * f, p1 * f, i2 * f, i1 * f, c * f};
@@ -82,7 +86,21 @@ struct Encoder::Query {
   std::vector<ChannelView> views;  // planes x channels
   std::vector<float> stats;        // owned window statistics, when not borrowed from a parent
   size_t values = 0;
+  // SSIM accumulation order of the planes: most contrast first, where a worse candidate shows its
+  // low values soonest and is abandoned early (the percentile does not depend on the order).
+  std::vector<int> order;
   const ChannelView& at(int p, int c) const { return views[size_t(p * channels + (c - first))]; }
+  void order_planes(int n) {
+    std::vector<double> contrast(size_t(planes), 0.0);
+    for (int p = 0; p < planes; ++p)
+      for (int c = 0; c < channels; ++c) {
+        const ChannelView& v = views[size_t(p * channels + c)];
+        contrast[size_t(p)] += v.sumsq - v.sum * v.sum / n;
+      }
+    order.resize(size_t(planes));
+    for (int p = 0; p < planes; ++p) order[size_t(p)] = p;
+    std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return contrast[size_t(a)] > contrast[size_t(b)]; });
+  }
 };
 
 namespace {
@@ -327,8 +345,10 @@ bool Encoder::evaluate_composite(const Query& q, const PlaneRef* planes, int np,
   }
   const double s = den > 1e-20 ? std::max(0.0, num / den) : 1.0;
   ctx.acc.reset(settings_.metric, q.values, settings_.outlier_fraction, bound);
-  for (int j = 0; j < np; ++j)
+  const bool reorder = settings_.metric == Metric::SSIM && int(q.order.size()) == np;
+  for (int jj = 0; jj < np; ++jj)
     for (int c = 0; c < 3; ++c) {
+      const int j = reorder ? q.order[size_t(jj)] : jj;
       const ChannelView& x = q.at(j, c);
       const ChannelView y = c == 0 ? p2_store_.view(planes[j].p2, 0) : i2_store_.view(planes[j].i2, c - 1);
       const Affine ax = unit_affine(dyn_, c, q.unit);
@@ -344,11 +364,13 @@ bool Encoder::evaluate_composite(const Query& q, const PlaneRef* planes, int np,
 
 namespace {
 
-// Candidate order: the `k` best by proxy first, then the others in index order.
+// Candidate order: the `k` best by proxy first, then the others in index order; with a limit, only
+// the `limit` best by proxy (an approximate search, see docs/similarity.md).
 template <class Proxy>
-void order_candidates(uint32_t n, int k, Proxy proxy, std::vector<float>& prox, std::vector<uint32_t>& order,
-                      std::vector<uint8_t>& tried) {
+void order_candidates(uint32_t n, int k, int limit, Proxy proxy, std::vector<float>& prox,
+                      std::vector<uint32_t>& order, std::vector<uint8_t>& tried) {
   order.clear();
+  if (limit > 0) k = std::max(k, limit);
   if (k <= 0 || n <= uint32_t(k)) {
     for (uint32_t e = 0; e < n; ++e) order.push_back(e);
     return;
@@ -363,6 +385,10 @@ void order_candidates(uint32_t n, int k, Proxy proxy, std::vector<float>& prox, 
   for (int i = 0; i < k; ++i) {
     order.push_back(idx[size_t(i)]);
     tried[idx[size_t(i)]] = 1;
+  }
+  if (limit > 0) {
+    order.resize(size_t(limit));
+    return;
   }
   for (uint32_t e = 0; e < n; ++e)
     if (!tried[e]) order.push_back(e);
@@ -431,7 +457,7 @@ Encoder::Match Encoder::search_composite(const Query& q, int level, double thres
   const int ns = int(qsig.size());
   const std::vector<float>& sig = level == 4 ? p4_sig_ : level == 3 ? p3_sig_ : m_sig_;
   order_candidates(
-      n, settings_.pruning ? settings_.proxy_candidates : 0,
+      n, settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
       [&](uint32_t e) { return scaled_distance(qsig.data(), sig.data() + size_t(e) * size_t(ns), ns); }, ctx.proxy,
       ctx.order, ctx.tried);
   std::vector<PlaneRef> planes;
@@ -497,7 +523,7 @@ Encoder::Match Encoder::search_p2(const Query& q, double threshold_score, Ctx& c
   std::vector<float> qsig(static_cast<size_t>(na));
   for (int a = 0; a < na; ++a) qsig[size_t(a)] = float(q.at(0, 0).row_sum(a, nb) / nb) - channel_offset(dyn_, 0);
   order_candidates(
-      n, settings_.pruning ? settings_.proxy_candidates : 0,
+      n, settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
       [&](uint32_t e) { return plain_distance(qsig.data(), p2_sig_.data() + size_t(e) * size_t(na), na); },
       ctx.proxy, ctx.order, ctx.tried);
   const Affine ax = unit_affine(dyn_, 0, q.unit);
@@ -524,7 +550,7 @@ Encoder::Match Encoder::search_i2(const Query& q, double threshold_score, Ctx& c
   for (int c = 1; c <= 2; ++c)
     for (int a = 0; a < na; ++a) qsig.push_back(float(q.at(0, c).row_sum(a, nb) / nb) - channel_offset(dyn_, c));
   order_candidates(
-      n, settings_.pruning ? settings_.proxy_candidates : 0,
+      n, settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
       [&](uint32_t e) { return plain_distance(qsig.data(), i2_sig_.data() + size_t(e) * size_t(2 * na), 2 * na); },
       ctx.proxy, ctx.order, ctx.tried);
   auto eval = [&](uint32_t e, double bound, double* sc, float* s) {
@@ -565,10 +591,18 @@ Encoder::Match Encoder::search_p1(const float* row, float unit, double threshold
   for (uint32_t e = 0; e < n; ++e) ctx.order[e] = e;
   // P1 rows are densities: the P2 scale multiplies Y itself (offset included), so the best scale
   // is the raw least-squares one.
+  // With r = 0 (fewer than 50 samples per row) the score is the minimum: stop at the first value
+  // below the bound. Same values as the general path, so the same choices.
+  const bool minimum = settings_.metric == Metric::SSIM && g1_.radius() == 1 &&
+                       size_t(std::floor(settings_.outlier_fraction * double(nb) + 1e-9)) == 0;
   auto eval = [&](uint32_t e, double bound, double* sc, float* s) {
     const ChannelView y = p1_store_.view(e, 0);
     const double sy = y.sumsq > 0 ? std::max(0.0, double(dot(x.v, y.v, nb)) / y.sumsq) : 0.0;
     const Affine ay{o * (1.0f - unit), float(unit * sy)};
+    if (minimum) {
+      *s = float(sy);
+      return min_ssim_row(g1_, x, ax, y, ay, ctx.k.c1[0], ctx.k.c2[0], bound, sc);
+    }
     ctx.acc.reset(settings_.metric, size_t(nb), settings_.outlier_fraction, bound);
     if (!accumulate_channel(g1_, settings_.metric, x, ax, y, ay, ctx.k.c1[0], ctx.k.c2[0], ctx.acc,
                             ctx.scratch.data()))
@@ -679,6 +713,7 @@ Encoder::Match Encoder::encode_p4(const float* texel_in, Ctx& ctx, bool exact) {
       float* st = q.stats.data() + size_t(2 * (p * 3 + c) * n);
       q.views.push_back(make_view(g2_, texel.data() + size_t(c) * samples + size_t(p * n), st, st + n));
     }
+  q.order_planes(n);
   if (!exact) {
     const Match found = search_composite(q, 4, bound_for(thresholds_.p4, q.values), ctx);
     if (found.index >= 0) return found;
@@ -689,7 +724,8 @@ Encoder::Match Encoder::encode_p4(const float* texel_in, Ctx& ctx, bool exact) {
     std::vector<float> sc(idx.size());
     double bright = 0;
     for (int p = 0; p < grid_.n_phi_v; ++p) {
-      const Query sub = sub_query(q, p * grid_.n_theta_v, grid_.n_theta_v);
+      Query sub = sub_query(q, p * grid_.n_theta_v, grid_.n_theta_v);
+      sub.order_planes(n);
       const Match r = encode_p3(sub, ctx, ex);
       idx[size_t(p)] = uint32_t(r.index);
       sc[size_t(p)] = r.scale;
@@ -772,7 +808,9 @@ Encoder::Match Encoder::encode_m(const Query& q, Ctx& ctx, bool exact) {
   const int n = g2_.size();
   const float o0 = channel_offset(dyn_, 0);
   const double bright = q.at(0, 0).sum / n - o0;
-  const float norm = bright > 1e-6 * normalized_brightness(dyn_) ? float(bright) / normalized_brightness(dyn_) : 1.0f;
+  // Slices darker than 1% of the target stay as they are: normalizing them would amplify their
+  // chroma noise (LDR chroma scales with RGB) far outside the usual range of C.
+  const float norm = bright >= 0.01 * normalized_brightness(dyn_) ? float(bright) / normalized_brightness(dyn_) : 1.0f;
   std::vector<float> v(static_cast<size_t>(3 * n)), st(static_cast<size_t>(6 * n));
   for (int c = 0; c < 3; ++c) {
     const float* x = q.at(0, c).v;
@@ -983,6 +1021,7 @@ P6Entry Encoder::encode_frozen(const float* texel_in) const {
       float* st = q.stats.data() + size_t(2 * (p * 3 + c) * n);
       q.views.push_back(make_view(g2_, texel.data() + size_t(c) * samples + size_t(p * n), st, st + n));
     }
+  q.order_planes(n);
   const Match best = search_composite(q, 4, kNoBound, ctx);
   P6Entry r;
   r.index = uint32_t(best.index);

@@ -31,6 +31,8 @@ struct Thresholds {
   // Reads "thresholds.ssim.*" and "thresholds.mse.*" (both are validated) and returns the set of
   // the given metric.
   static Thresholds from(const ParameterDictionary& d, Metric metric);
+  // The same, for the metric named by "similarity.metric".
+  static Thresholds from(const ParameterDictionary& d);
   // Every dissimilarity times factor (phase 2 of the schedule uses 2.5).
   Thresholds relaxed(double factor) const;
 };

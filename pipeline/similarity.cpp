@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "pipeline/error.h"
 
@@ -23,6 +24,7 @@ SimilaritySettings SimilaritySettings::from(const ParameterDictionary& d) {
   s.window_radius = d.integer("similarity.window_radius", 0, 5);
   s.pruning = d.boolean("similarity.pruning");
   s.proxy_candidates = d.integer("similarity.proxy_candidates", 0, 1 << 20);
+  s.candidate_limit = d.integer("similarity.candidate_limit", 0, 1 << 20);
   return s;
 }
 
@@ -162,15 +164,14 @@ void ScoreAccumulator::reset(Metric m, size_t total_values, double outlier_fract
   alive_ = true;
   sse_ = 0;
   keep_ = size_t(std::floor(outlier_fraction * double(total_values) + 1e-9)) + 1;
-  heap_.clear();
-  heapified_ = false;
+  used_ = 0;
   below_ = 0;
-  if (heap_.capacity() < keep_) heap_.reserve(keep_);
+  tau_ = std::numeric_limits<float>::infinity();
 }
 
 bool ScoreAccumulator::add_ssim(const float* values, int n) {
   // Count first: a candidate that already has more than r values below the bound is dead, and
-  // most candidates of a search die this way, without any heap work.
+  // most candidates of a search die this way.
   int below = 0;
   const double bound = bound_;
   for (int k = 0; k < n; ++k) below += double(values[k]) < bound;
@@ -179,35 +180,23 @@ bool ScoreAccumulator::add_ssim(const float* values, int n) {
     alive_ = false;
     return false;
   }
-  int i = 0;
-  // Fill phase: collect the first keep_ values, then heapify once.
-  while (heap_.size() < keep_ && i < n) heap_.push_back(values[i++]);
-  if (heap_.size() == keep_ && i > 0 && !heapified_) {
-    std::make_heap(heap_.begin(), heap_.end());
-    heapified_ = true;
+  // Batched selection: keep only values below tau (>= the (r+1)-th smallest so far); when the
+  // buffer reaches 2 (r+1) values, select the r+1 smallest and lower tau to the largest of them.
+  if (buffer_.size() < used_ + size_t(n)) buffer_.resize(used_ + size_t(n));
+  float* buf = buffer_.data();
+  size_t m = used_;
+  const float tau = tau_;
+  for (int k = 0; k < n; ++k) {
+    buf[m] = values[k];
+    m += values[k] < tau;
   }
-  if (i < n) {
-    float* h = heap_.data();
-    const size_t k = keep_;
-    for (; i < n; ++i) {
-      const float v = values[i];
-      if (!(v < h[0])) continue;
-      // Replace the largest kept value and sift it down.
-      size_t at = 0;
-      for (;;) {
-        size_t child = 2 * at + 1;
-        if (child >= k) break;
-        if (child + 1 < k && h[child + 1] > h[child]) ++child;
-        if (!(h[child] > v)) break;
-        h[at] = h[child];
-        at = child;
-      }
-      h[at] = v;
-    }
+  used_ = m;
+  if (used_ >= 2 * keep_) {
+    std::nth_element(buf, buf + (keep_ - 1), buf + used_);
+    tau_ = buf[keep_ - 1];
+    used_ = keep_;
   }
-  // More than r values strictly below the bound: the percentile is below the bound.
-  if (heap_.size() == keep_ && double(heap_.front()) < bound_) alive_ = false;
-  return alive_;
+  return true;
 }
 
 bool ScoreAccumulator::add_squared_error(double sum) {
@@ -218,9 +207,12 @@ bool ScoreAccumulator::add_squared_error(double sum) {
 
 double ScoreAccumulator::score() const {
   if (metric_ == Metric::MSE) return -sse_;
-  if (heap_.empty()) return 1.0;
-  // Fewer values than keep_ (only when total_values was overstated): the largest kept one.
-  return double(*std::max_element(heap_.begin(), heap_.end()));
+  if (used_ == 0) return 1.0;
+  // The (r+1)-th smallest value; with fewer values (total_values overstated) the largest one.
+  float* buf = buffer_.data();
+  const size_t k = std::min(keep_, used_) - 1;
+  std::nth_element(buf, buf + k, buf + used_);
+  return double(buf[k]);
 }
 
 double score_to_dissimilarity(Metric m, double score, size_t total_values) {
@@ -259,6 +251,30 @@ bool accumulate_channel(const WindowGeometry& g, Metric metric, const ChannelVie
     ssim[i] = ((2 * mx * my + c1) * (2 * cov + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2));
   }
   return acc.add_ssim(ssim, n);
+}
+
+bool min_ssim_row(const WindowGeometry& g, const ChannelView& x, Affine ax, const ChannelView& y, Affine ay, float c1,
+                  float c2, double bound, double* score) {
+  const int n = g.cols();
+  const float bxy = ax.b * ay.b, bxx = ax.b * ax.b, byy = ay.b * ay.b;
+  float lowest = 2.0f;
+  for (int i = 0; i < n; ++i) {
+    // Window sum of products in box3's order, so that every value equals accumulate_channel's.
+    float exy;
+    if (n == 1) exy = x.v[0] * y.v[0];
+    else if (i == 0) exy = x.v[0] * y.v[0] + x.v[1] * y.v[1];
+    else if (i == n - 1) exy = x.v[n - 2] * y.v[n - 2] + x.v[n - 1] * y.v[n - 1];
+    else exy = x.v[i - 1] * y.v[i - 1] + x.v[i] * y.v[i] + x.v[i + 1] * y.v[i + 1];
+    const float mx = ax.a + ax.b * x.mean[i];
+    const float my = ay.a + ay.b * y.mean[i];
+    const float cov = bxy * (exy * g.inv_count(i) - x.mean[i] * y.mean[i]);
+    const float vx = bxx * x.var[i], vy = byy * y.var[i];
+    const float v = ((2 * mx * my + c1) * (2 * cov + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2));
+    if (double(v) < bound) return false;
+    lowest = std::min(lowest, v);
+  }
+  *score = lowest;
+  return true;
 }
 
 double slice_similarity(const SimilaritySettings& s, Dynamic dyn, const WindowGeometry& g, const float* x,

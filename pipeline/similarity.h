@@ -32,6 +32,7 @@ struct SimilaritySettings {
   int window_radius = 1;           // 1 -> 3 x 3 windows (3 samples along beta for 1D slices)
   bool pruning = true;             // abandon candidates early; false = exhaustive (for tests)
   int proxy_candidates = 16;       // candidates tried first, in order of a cheap proxy distance
+  int candidate_limit = 0;         // > 0: evaluate only this many best-by-proxy candidates (approximate)
 
   // Reads the "similarity" section; unknown keys are reported by the dictionary's check_unused().
   static SimilaritySettings from(const ParameterDictionary& d);
@@ -110,8 +111,9 @@ struct Affine {
   float a = 0, b = 1;
 };
 
-// The score of one candidate, accumulated plane by plane: SSIM keeps the r+1 smallest values in a
-// max-heap (its top is the percentile); MSE keeps the sum of squared differences. Scores are
+// The score of one candidate, accumulated plane by plane: SSIM keeps the values that can still be
+// among the r+1 smallest (batched selection) and counts those below the bound; MSE keeps the sum of
+// squared differences. Scores are
 // "higher is better": SSIM percentile, or minus the sum of squares.
 class ScoreAccumulator {
  public:
@@ -126,8 +128,9 @@ class ScoreAccumulator {
   Metric metric_ = Metric::SSIM;
   size_t keep_ = 1;
   double bound_ = -1e300;
-  std::vector<float> heap_;
-  bool heapified_ = false;
+  mutable std::vector<float> buffer_;  // (score() selects in place) candidates for the (r+1)-th smallest value: used_ of them
+  size_t used_ = 0;
+  float tau_ = 0;     // values >= tau_ cannot be among the r+1 smallest
   size_t below_ = 0;  // values strictly below the bound so far
   double sse_ = 0;
   bool alive_ = true;
@@ -137,6 +140,12 @@ class ScoreAccumulator {
 // scratch must hold 3 x plane size floats.
 bool accumulate_channel(const WindowGeometry& g, Metric metric, const ChannelView& x, Affine ax, const ChannelView& y,
                         Affine ay, float c1, float c2, ScoreAccumulator& acc, float* scratch);
+
+// 1D slices (rows == 1, radius 1) whose score is the minimum (r = 0): the same values as
+// accumulate_channel, but stops at the first one below `bound` (returns false). On success *score is
+// the minimum.
+bool min_ssim_row(const WindowGeometry& g, const ChannelView& x, Affine ax, const ChannelView& y, Affine ay, float c1,
+                  float c2, double bound, double* score);
 
 // Converts a score into a dissimilarity d (SSIM: 1 - score; MSE: mean squared error) and back.
 double score_to_dissimilarity(Metric m, double score, size_t total_values);

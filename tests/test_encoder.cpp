@@ -246,6 +246,10 @@ TEST_CASE("thresholds come from the config; bad values are ConfigErrors naming t
   auto d = ParameterDictionary::embedded_default("pipeline");
   const Thresholds t = Thresholds::from(d, Metric::SSIM);
   CHECK(t.p4 == doctest::Approx(0.06));
+  auto mse = ParameterDictionary::embedded_default("pipeline");
+  mse.merge(ParameterDictionary::parse(R"({"similarity": {"metric": "mse"}})", "override"));
+  CHECK(Thresholds::from(mse).p4 == doctest::Approx(6.0));
+  CHECK(Thresholds::from(d).p4 == doctest::Approx(0.06));
   CHECK(t.c == doctest::Approx(1.0));
   const Thresholds r = t.relaxed(2.5);
   CHECK(r.p1 == doctest::Approx(2.5 * t.p1));
@@ -282,5 +286,40 @@ TEST_CASE("MSE: the LAESA pivot bound and partial sums choose exactly what the e
     const P6Entry p = ea.encode_frozen(x.data()), q = eb.encode_frozen(x.data());
     CHECK(p.index == q.index);
     CHECK(p.scale == q.scale);
+  }
+}
+
+TEST_CASE("an approximate search (candidate_limit) evaluates fewer candidates and keeps the guarantee") {
+  SyntheticMaterial mat(8, 8);
+  SimilaritySettings exact, approx;
+  approx.candidate_limit = 1;
+  Codebooks a(mat.grid), b(mat.grid);
+  Encoder ea(a, Dynamic::LDR, Thresholds{}, exact), eb(b, Dynamic::LDR, Thresholds{}, approx);
+  for (uint32_t id = 0; id < 12; ++id) {
+    const auto t = mat.texel(id * 7 % 64);
+    ea.encode_growing(t.data());
+    const P6Entry e = eb.encode_growing(t.data());
+    CHECK(reconstruction_dissimilarity(b, Dynamic::LDR, approx, t, e) <= Thresholds{}.p4 + 2e-4);
+  }
+  CHECK(eb.stats().comparisons < ea.stats().comparisons);
+  CHECK(total_entries(b) >= total_entries(a));
+}
+
+TEST_CASE("black texels (LDR 16/128/128, HDR zero) encode and reconstruct exactly") {
+  AngularGrid g;
+  const size_t n = g.samples();
+  for (Dynamic dyn : {Dynamic::LDR, Dynamic::HDR}) {
+    std::vector<float> black(3 * n);
+    for (size_t i = 0; i < n; ++i) {
+      black[i] = dyn == Dynamic::LDR ? 16.0f : 0.0f;
+      black[n + i] = black[2 * n + i] = dyn == Dynamic::LDR ? 128.0f : 50.0f;
+    }
+    Codebooks k(g);
+    Encoder enc(k, dyn, Thresholds{}, SimilaritySettings{});
+    const P6Entry e = enc.encode_growing(black.data());
+    std::vector<float> recon(3 * n);
+    reconstruct_texel(k, dyn, e.index, e.scale, recon.data());
+    for (size_t i = 0; i < 3 * n; i += 97) CHECK(recon[i] == doctest::Approx(black[i]).epsilon(1e-4));
+    CHECK(enc.encode_frozen(black.data()).index == e.index);
   }
 }

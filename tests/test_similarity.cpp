@@ -173,3 +173,29 @@ TEST_CASE("similarity settings come from the config with every default, and bad 
     CHECK(std::string(e.what()).find("similarity.metirc") != std::string::npos);
   }
 }
+
+TEST_CASE("min_ssim_row gives the accumulator's values and stops below the bound") {
+  std::mt19937 rng(5);
+  WindowGeometry g(1, 11, 1);
+  std::vector<float> st(44), scratch(33);
+  for (int trial = 0; trial < 50; ++trial) {
+    const auto x = random_slice(rng, 11, 16, 235);
+    auto y = x;
+    std::normal_distribution<float> noise(0.0f, float(trial % 10));
+    for (auto& v : y) v += noise(rng);
+    ChannelView xv, yv;
+    xv.v = x.data(), yv.v = y.data();
+    g.stats(x.data(), st.data(), st.data() + 11);
+    g.stats(y.data(), st.data() + 22, st.data() + 33);
+    xv.mean = st.data(), xv.var = st.data() + 11, yv.mean = st.data() + 22, yv.var = st.data() + 33;
+    const Affine ax{-4.0f, 1.25f}, ay{-3.0f, 1.2f};
+    ScoreAccumulator acc;
+    acc.reset(Metric::SSIM, 11, 0.02, -1e300);
+    accumulate_channel(g, Metric::SSIM, xv, ax, yv, ay, 42.0f, 380.0f, acc, scratch.data());
+    double fast = 0;
+    REQUIRE(min_ssim_row(g, xv, ax, yv, ay, 42.0f, 380.0f, -1e300, &fast));
+    CHECK(fast == acc.score());  // bit-identical
+    CHECK_FALSE(min_ssim_row(g, xv, ax, yv, ay, 42.0f, 380.0f, std::nextafter(acc.score(), 2.0), &fast));
+    CHECK(min_ssim_row(g, xv, ax, yv, ay, 42.0f, 380.0f, acc.score(), &fast));
+  }
+}
