@@ -65,6 +65,8 @@ int run_compress(const Args& a) {
     if (bar) bar->finish();
     reports.push_back(r.json);
   }
+  // Round the new rows to what the file stores, so the in-memory model and the file decode alike.
+  quantize_new_rows(db);
   write_database(db, out);
   const uint64_t bytes = fs::file_size(out);
   uint64_t raw = 0;

@@ -683,10 +683,13 @@ P6Entry Encoder::encode_growing(const float* texel) {
 
 namespace {
 
-// The texel with luminance clamped at 0 (negative luminance has no density).
-std::vector<float> clamped_texel(const float* texel, size_t samples) {
+// The texel with luminance clamped at black: 0 for HDR, the studio-swing 16 for LDR. Below black
+// an RGB scale would turn (Y - 16) negative; normalizing such a slice amplifies the overshoot of the
+// interpolation into negative densities in P1 (and ruins the range of the P1 quantizer).
+std::vector<float> clamped_texel(const float* texel, size_t samples, Dynamic dyn) {
   std::vector<float> t(texel, texel + 3 * samples);
-  for (size_t i = 0; i < samples; ++i) t[i] = std::max(0.0f, t[i]);
+  const float black = channel_offset(dyn, 0);
+  for (size_t i = 0; i < samples; ++i) t[i] = std::max(black, t[i]);
   return t;
 }
 
@@ -700,7 +703,7 @@ float luminance_range(const float* texel, size_t samples) {
 
 Encoder::Match Encoder::encode_p4(const float* texel_in, Ctx& ctx, bool exact) {
   const size_t samples = grid_.samples();
-  const std::vector<float> texel = clamped_texel(texel_in, samples);
+  const std::vector<float> texel = clamped_texel(texel_in, samples, dyn_);
   ctx.k = SsimConstants::make(settings_, dyn_, luminance_range(texel.data(), samples));
   ctx.scratch.resize(size_t(3 * g2_.size()));
   const int nplanes = grid_.n_phi_v * grid_.n_theta_v, n = g2_.size();
@@ -1007,7 +1010,7 @@ P6Entry Encoder::encode_frozen(const float* texel_in) const {
   if (p4_bright_.size() != books_.p4_index.rows() || p2_store_.size() != books_.p2_index.rows())
     throw InputError("encoder: the code-books grew outside this encoder; encode_growing() syncs them");
   const size_t samples = grid_.samples();
-  const std::vector<float> texel = clamped_texel(texel_in, samples);
+  const std::vector<float> texel = clamped_texel(texel_in, samples, dyn_);
   Ctx ctx;
   ctx.k = SsimConstants::make(settings_, dyn_, luminance_range(texel.data(), samples));
   ctx.scratch.resize(size_t(3 * g2_.size()));
