@@ -194,18 +194,19 @@ void HttpServer::install_routes() {
         if (stopping_ || svc.stopping()) return false;
         const uint64_t seen = svc.revision();
         const json job = svc.job(id);
-        const std::string text = job.dump();
+        // Elapsed time and ETA tick by themselves; an event is due when anything else changed.
+        json key = job;
+        key.erase("elapsed_s");
+        key.erase("eta_s");
+        const std::string text = key.dump();
         if (text != state->last) {
           state->last = text;
           const bool final = Service::is_final(job["state"]);
           const std::string e = sse_event(final ? "end" : "progress", job);
           if (!sink.write(e.data(), e.size())) return false;
           state->last_write = std::chrono::steady_clock::now();
-          if (final) {
-            sink.done();
-            return true;
-          }
-          return true;  // let httplib flush; it calls us again
+          if (final) sink.done();
+          return true;  // httplib flushes and calls again
         }
         if (std::chrono::steady_clock::now() - state->last_write > std::chrono::seconds(15)) {
           static const std::string ping = ": keep-alive\n\n";

@@ -462,16 +462,17 @@ json Service::job_json(const JobRecord& job) {
           {"request", job.spec}};
 }
 
+// Store reads happen under mutex_ so that a record and the live progress are one snapshot.
 json Service::job(const std::string& id) {
+  std::lock_guard lock(mutex_);
   auto record = store_->job(id);
   if (!record) throw NotFoundError("no job '" + id + "'");
-  std::lock_guard lock(mutex_);
   return job_json(*record);
 }
 
 json Service::jobs() {
-  auto records = store_->jobs();
   std::lock_guard lock(mutex_);
+  auto records = store_->jobs();
   json out = json::array();
   for (const auto& r : records) {
     json j = job_json(r);
