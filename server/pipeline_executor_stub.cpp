@@ -1,6 +1,6 @@
 // Stand-ins for the pipeline-backed pieces of the server until the compressor library links in
 // this branch. The integrator deletes this file and renames pipeline_executor.cpp.pending to
-// pipeline_executor.cpp (same three functions, backed by compress_material()).
+// pipeline_executor.cpp (the same two functions, backed by compress_material() and synthetic.h).
 #include "pipeline/error.h"
 #include "server/executor.h"
 
@@ -12,13 +12,9 @@ Executor make_pipeline_executor() {
   };
 }
 
-void validate_pipeline_overrides(const nlohmann::json& overrides) {
-  if (!overrides.is_object()) throw InputError("pipeline: must be an object", "invalid_request");
-}
-
 std::vector<std::string> synthetic_presets() {
-  // DESIGN.md section 6; replaced by the generator's own list.
-  return {"bumps", "weave", "grain", "flakes", "fibres", "tile", "foil", "wool", "corduroy"};
+  // The generator's presets on feat/synth (pipeline/synthetic.h); the pending file asks it directly.
+  return {"tile", "foil", "wood", "leather", "fabric", "corduroy", "wool"};
 }
 
 }  // namespace btfvq::server

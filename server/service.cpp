@@ -21,7 +21,7 @@ namespace {
 
 constexpr const char* kCodebookNames[8] = {"P1", "C", "I1", "I2", "P2", "M", "P3", "P4"};
 constexpr size_t kMaxMaterialsPerJob = 256;
-constexpr int kMinSyntheticSize = 4, kMaxSyntheticSize = 4096;
+constexpr int kMinSyntheticSize = 4, kMaxSyntheticSize = 2048;  // the generator accepts up to 2048
 constexpr int64_t kMaxSeed = (int64_t(1) << 53);
 
 double now_seconds() {

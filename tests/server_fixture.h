@@ -50,7 +50,7 @@ inline void write_file(const fs::path& p, const std::string& bytes) {
 }
 
 // Behaviour by synthetic preset: "wool" compresses (progress through phases 1-3, then writes),
-// "tile" fails with an InputError, "foil" runs until cancelled, "flakes" waits for release().
+// "tile" fails with an InputError, "foil" runs until cancelled, "leather" waits for release().
 struct FakeCompressor {
   std::mutex mutex;
   std::condition_variable cv;
@@ -98,7 +98,7 @@ struct FakeCompressor {
           }
           throw CancelledError();
         }
-        if (m.preset == "flakes") {
+        if (m.preset == "leather") {
           std::unique_lock lock(mutex);
           const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(20);
           while (!released && !ctx.cancelled() && std::chrono::steady_clock::now() < until)

@@ -247,7 +247,7 @@ TEST_CASE("database downloads: length, ETag, sha256 header, ranges, versions") {
 TEST_CASE("the event stream reports progress and ends at the final state") {
   TestServer t("http-events");
   auto c = t.client();
-  auto r = c.Post("/v1/jobs", synthetic_job("ev", "flakes").dump(), "application/json");
+  auto r = c.Post("/v1/jobs", synthetic_job("ev", "leather").dump(), "application/json");
   const std::string id = body_json(r)["id"];
   std::vector<std::pair<std::string, json>> events;
   std::string buffer;
@@ -341,6 +341,12 @@ TEST_CASE("bad job requests get a 4xx naming the field and change no state") {
       {R"({"database": "d", "materials": [{"source": {"path": "/etc/passwd"}}]})", 403, "outside"},
       {R"({"database": "keep", "materials": [{"name": "kept", "source": {"path": "in/a.zip"}}]})", 400, "kept"},
       {R"({"database": "d", "materials": [{"source": {"path": "in/a.zip"}}], "pipeline": []})", 400, "pipeline"},
+      {R"({"database": "d", "materials": [{"source": {"path": "in/a.zip"}}], "pipeline": {"grid": {"n_alhpa": 3}}})", 400,
+       "pipeline.grid.n_alhpa"},
+      {R"({"database": "d", "materials": [{"source": {"path": "in/a.zip"}}], "pipeline": {"grid": {"n_beta": "11"}}})", 400,
+       "pipeline.grid.n_beta"},
+      {R"({"database": "d", "materials": [{"source": {"path": "in/a.zip"}}], "pipeline": {"grid": {"n_beta": 11.5}}})", 400,
+       "pipeline.grid.n_beta"},
       {R"({"database": "d", "materials": [{"source": {"path": "in/a.zip"}}], "pad": ")" + std::string(5000, ' ') + "\"}",
        413, "exceeds"},
   };

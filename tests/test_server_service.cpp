@@ -168,9 +168,9 @@ TEST_CASE("stopping the service puts a running job back in the queue; the next s
     FakeCompressor fake;
     Service service(config_in(dir), fake.executor());
     service.start();
-    id = service.submit(synthetic_job("zeta", "flakes"))["id"];
+    id = service.submit(synthetic_job("zeta", "leather"))["id"];
     wait_state(service, id, "running");
-    service.stop();  // flakes waits for release(); stop() must still interrupt it
+    service.stop();  // leather waits for release(); stop() must still interrupt it
     fake.release();
   }
   {
@@ -246,7 +246,10 @@ TEST_CASE("job validation names the field and changes nothing") {
   CHECK(tree(dir) == before_files);
 
   // The accepted form of the same request, for contrast.
-  const json ok = service.submit(with_source({{"path", "ok/sample.zip"}}));
+  json accepted = with_source({{"path", "ok/sample.zip"}});
+  accepted["pipeline"] = {{"grid", {{"n_beta", 13}}}};
+  const json ok = service.submit(accepted);
+  CHECK(ok["request"]["pipeline"]["grid"]["n_beta"] == 13);
   CHECK(ok["state"] == "queued");
   CHECK(ok["materials"][0] == "sample");
   CHECK(service.jobs().size() == 1);
