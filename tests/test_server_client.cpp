@@ -144,6 +144,9 @@ TEST_CASE("submit uploads local files first; BTFVQ_SERVER stands in for --server
                         "BTFVQ_SERVER=" + t.url());
   CAPTURE(submit.all);
   REQUIRE(submit.status == 0);
+  // Not a terminal: the progress bar prints plain lines on stderr, and stdout holds only the id.
+  CHECK(submit.all.find("upload sample.zip: 100%") != std::string::npos);
+  CHECK(submit.out.find("upload") == std::string::npos);
   const json job = wait_final(*t.service, trim(submit.out));
   CHECK(job["state"] == "succeeded");
   const std::string upload = job["request"]["materials"][0]["source"]["upload"];

@@ -84,6 +84,9 @@ TEST_CASE("health, unknown routes and the error shape") {
   CHECK(c.Get("/v1/databases/none/content")->status == 404);
   CHECK(c.Get("/v1/uploads/none")->status == 404);
   CHECK(c.Delete("/v1/jobs/none")->status == 404);
+  auto events = c.Get("/v1/jobs/none/events");
+  CHECK(events->status == 404);
+  error_message(events);
 }
 
 TEST_CASE("a bearer token guards every endpoint but /healthz") {
