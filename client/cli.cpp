@@ -1,6 +1,7 @@
 #include "client/cli.h"
 
 #include <algorithm>
+#include <cmath>
 
 #include "pipeline/error.h"
 
@@ -50,6 +51,25 @@ int Args::integer(const std::string& flag, int fallback, int lo, int hi) const {
     throw InputError("--" + flag + " must be an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) +
                      "] (got '" + *v + "')");
   return int(n);
+}
+
+Direction parse_direction(const std::string& text, const std::string& flag) {
+  const auto comma = text.find(',');
+  double v[2] = {0, 0};
+  bool ok = comma != std::string::npos;
+  const std::string parts[2] = {ok ? text.substr(0, comma) : text, ok ? text.substr(comma + 1) : ""};
+  for (int i = 0; ok && i < 2; ++i) {
+    size_t used = 0;
+    try {
+      v[i] = std::stod(parts[i], &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    ok = used == parts[i].size() && used > 0 && std::isfinite(v[i]);
+  }
+  if (!ok || v[0] < 0 || v[0] > 90)
+    throw InputError("--" + flag + " must be THETA,PHI in degrees with theta in [0, 90] (got '" + text + "')");
+  return {v[0], v[1]};
 }
 
 Args parse_args(const Command& command, const std::vector<std::string>& argv) {

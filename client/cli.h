@@ -7,6 +7,9 @@
 #include <string>
 #include <vector>
 
+#include "pipeline/directions.h"
+#include "pipeline/error.h"
+
 namespace btfvq::cli {
 
 // Parsed arguments of one subcommand. Flags are `--name value` or `--name=value`; switches are
@@ -43,6 +46,9 @@ std::map<std::string, Command>& registry();
 struct CommandRegistrar {
   explicit CommandRegistrar(Command c);
 };
+
+// "THETA,PHI" in degrees, e.g. "45,120"; theta in [0, 90]. Throws InputError naming the flag.
+Direction parse_direction(const std::string& text, const std::string& flag);
 
 // Parses argv (after the subcommand name) against a command's declared flags.
 Args parse_args(const Command& command, const std::vector<std::string>& argv);

@@ -80,10 +80,38 @@ struct Material {
   bool operator==(const Material& o) const = default;
 };
 
+// How the float values one database version appended to a code-book were quantized (paper Sec. 4.5;
+// docs/format.md): raw IEEE floats, or `bits`-bit codes uniform in the value (Linear) or in its
+// logarithm (Log, bounded relative error; falls back to Linear for a chunk with negative values).
+struct ValueCoding {
+  enum Mode : uint8_t { Float32 = 0, Linear = 1, Log = 2 };
+  Mode mode = Float32;
+  uint8_t bits = 32;  // 32 with Float32; 8 or 16 otherwise
+
+  bool operator==(const ValueCoding& o) const = default;
+};
+
+// One published database version: code-book sizes and material count after it, and how its new
+// values were quantized, so that rewriting the database reproduces that version's sections byte for
+// byte (append-only versions, delta downloads).
+struct VersionMark {
+  size_t p1 = 0, c = 0, i1 = 0, i2 = 0, p2 = 0, m = 0, p3 = 0, p4 = 0;
+  size_t materials = 0;
+  ValueCoding p1_values, c_values, p2_scale, p3_scale, p4_scale, p6_scale;
+  uint8_t zstd_level = 0;  // 0: sections stored raw packed; else zstd at this level where it is smaller
+
+  bool operator==(const VersionMark& o) const = default;
+};
+
 // A whole database in memory: shared code-books and the materials that index into them.
 struct Database {
   Codebooks codebooks;
   std::vector<Material> materials;
+  // Published versions, oldest first (version number = position + 1). Rows and materials past the
+  // last mark are not yet published; write_database() publishes them as the next version.
+  std::vector<VersionMark> versions;
+
+  bool operator==(const Database& o) const = default;
 
   const Material* find(const std::string& name) const;
   // Throws CorruptError naming the code-book, row and column of the first index that points past

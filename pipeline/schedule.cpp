@@ -1,0 +1,136 @@
+#include "pipeline/schedule.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <exception>
+#include <thread>
+
+#include "pipeline/error.h"
+
+namespace btfvq {
+
+ScheduleSettings ScheduleSettings::from(const ParameterDictionary& d) {
+  ScheduleSettings s;
+  s.phase1_fraction = d.number("schedule.phase1_fraction", 0.0, 1.0);
+  s.phase2_fraction = d.number("schedule.phase2_fraction", 0.0, 1.0);
+  if (s.phase1_fraction + s.phase2_fraction > 1.0)
+    throw ConfigError(d.origin() + ": 'schedule.phase1_fraction' + 'schedule.phase2_fraction' must not exceed 1");
+  s.relax_factor = d.number("schedule.relax_factor", 1.0, 100.0);
+  s.tile_texels = d.integer("schedule.tile_texels", 1, 1 << 16);
+  s.threads = d.integer("schedule.threads", 1, 256);
+  return s;
+}
+
+CodebookSizes CodebookSizes::of(const Codebooks& k) {
+  return {k.p1.rows(), k.c.rows(), k.i1.rows(), k.i2.rows(), k.p2_index.rows(), k.m.rows(), k.p3_index.rows(),
+          k.p4_index.rows()};
+}
+
+namespace {
+
+double radical_inverse(uint64_t i, uint32_t base) {
+  double inv = 1.0 / base, f = inv, r = 0;
+  while (i > 0) {
+    r += f * double(i % base);
+    i /= base;
+    f *= inv;
+  }
+  return r;
+}
+
+}  // namespace
+
+std::vector<uint32_t> halton_order(int width, int height) {
+  if (width <= 0 || height <= 0) throw InputError("halton_order: width and height must be positive");
+  const size_t n = size_t(width) * size_t(height);
+  std::vector<uint32_t> order;
+  order.reserve(n);
+  std::vector<uint8_t> seen(n, 0);
+  for (uint64_t i = 1; order.size() < n && i <= 16 * uint64_t(n) + 16; ++i) {
+    const int x = std::min(width - 1, int(radical_inverse(i, 2) * width));
+    const int y = std::min(height - 1, int(radical_inverse(i, 3) * height));
+    const size_t id = size_t(y) * size_t(width) + size_t(x);
+    if (!seen[id]) {
+      seen[id] = 1;
+      order.push_back(uint32_t(id));
+    }
+  }
+  for (size_t id = 0; id < n; ++id)
+    if (!seen[id]) order.push_back(uint32_t(id));
+  return order;
+}
+
+void phase_sizes(size_t texels, const ScheduleSettings& s, size_t* phase1, size_t* phase2) {
+  size_t a = size_t(std::llround(s.phase1_fraction * double(texels)));
+  a = std::clamp<size_t>(a, texels > 0 ? 1 : 0, texels);
+  size_t b = size_t(std::llround(s.phase2_fraction * double(texels)));
+  b = std::min(b, texels - a);
+  *phase1 = a;
+  *phase2 = b;
+}
+
+ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height, const TexelSource& source,
+                            const Thresholds& thresholds, const SimilaritySettings& similarity,
+                            const ScheduleSettings& schedule, const std::function<void(const ScheduleProgress&)>& progress,
+                            const std::function<bool()>& cancelled) {
+  if (!source) throw InputError("run_schedule: no texel source");
+  const std::vector<uint32_t> order = halton_order(width, height);
+  const size_t total = order.size(), samples = books.grid.samples();
+  size_t n1, n2;
+  phase_sizes(total, schedule, &n1, &n2);
+  const size_t bounds[4] = {0, n1, n1 + n2, total};
+
+  ScheduleResult result;
+  result.p6_index.assign(total, -1);
+  result.p6_scale.assign(total, 0.0f);
+  result.dissimilarity.assign(total, 0.0f);
+  Encoder encoder(books, dyn, thresholds, similarity);
+  const size_t tile = size_t(schedule.tile_texels);
+  std::vector<float> buffer(std::min(tile, total) * 3 * samples);
+
+  for (int phase = 1; phase <= 3; ++phase) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const size_t begin = bounds[phase - 1], end = bounds[phase];
+    if (phase == 2) encoder.set_thresholds(thresholds.relaxed(schedule.relax_factor));
+    for (size_t at = begin; at < end; at += tile) {
+      if (cancelled && cancelled()) throw CancelledError("encoding cancelled in phase " + std::to_string(phase));
+      const size_t n = std::min(tile, end - at);
+      source(order.data() + at, n, buffer.data());
+      auto store = [&](size_t i, const P6Entry& e) {
+        const uint32_t id = order[at + i];
+        result.p6_index[id] = int32_t(e.index);
+        result.p6_scale[id] = e.scale;
+        result.dissimilarity[id] = float(e.dissimilarity);
+      };
+      if (phase < 3) {
+        for (size_t i = 0; i < n; ++i) store(i, encoder.encode_growing(buffer.data() + i * 3 * samples));
+      } else {
+        // The frozen encoder is const: texels of a tile are split over the workers.
+        const int workers = std::max(1, std::min<int>(schedule.threads, int(n)));
+        std::vector<std::thread> pool;
+        std::vector<std::exception_ptr> errors(static_cast<size_t>(workers));
+        for (int w = 0; w < workers; ++w)
+          pool.emplace_back([&, w] {
+            try {
+              for (size_t i = size_t(w); i < n; i += size_t(workers))
+                store(i, encoder.encode_frozen(buffer.data() + i * 3 * samples));
+            } catch (...) {
+              errors[size_t(w)] = std::current_exception();
+            }
+          });
+        for (auto& t : pool) t.join();
+        for (auto& e : errors)
+          if (e) std::rethrow_exception(e);
+      }
+      if (progress) progress({phase, at + n - begin, end - begin, CodebookSizes::of(books)});
+    }
+    result.report.texels[phase - 1] = end - begin;
+    result.report.sizes[phase - 1] = CodebookSizes::of(books);
+    result.report.seconds[phase - 1] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  }
+  result.report.encoder = encoder.stats();
+  return result;
+}
+
+}  // namespace btfvq
