@@ -69,7 +69,7 @@ using Executor = std::function<void(const JobSpec&, const std::string& previous_
 // The real executor (server/pipeline_executor.cpp once the pipeline links).
 Executor make_pipeline_executor();
 
-// Submit-time checks that need the pipeline; stubs until the library lands (pipeline_hooks.cpp).
+// Submit-time checks that need the pipeline (pipeline_hooks.cpp).
 // Throws ConfigError/InputError naming the key when `overrides` is not acceptable.
 void validate_pipeline_overrides(const nlohmann::json& overrides);
 // The synthetic presets that exist (for 400 on an unknown preset).

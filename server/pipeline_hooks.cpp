@@ -1,9 +1,11 @@
-// Submit-time check of a job's pipeline overrides against configs/pipeline.json: every key must
+// Submit-time checks that need the pipeline: the synthetic presets that exist, and the check of a
+// job's pipeline overrides against configs/pipeline.json: every key must
 // exist in the defaults with the same JSON type, so that a typo is a 400 now rather than a failed
 // job later. Value ranges are checked by the pipeline's own ParameterDictionary getters when the
 // job runs (a ConfigError there fails the job with the key named).
 #include "pipeline/config.h"
 #include "pipeline/error.h"
+#include "pipeline/synthetic.h"
 #include "server/executor.h"
 
 namespace btfvq::server {
@@ -38,6 +40,12 @@ void check_against(const nlohmann::json& defaults, const nlohmann::json& overrid
 void validate_pipeline_overrides(const nlohmann::json& overrides) {
   if (!overrides.is_object()) throw InputError("pipeline: must be an object", "invalid_request");
   check_against(ParameterDictionary::embedded_default("pipeline").json(), overrides, "pipeline");
+}
+
+std::vector<std::string> synthetic_presets() {
+  std::vector<std::string> names;
+  for (const auto& p : btfvq::synthetic_presets()) names.push_back(p.name);
+  return names;
 }
 
 }  // namespace btfvq::server
