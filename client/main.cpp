@@ -16,7 +16,8 @@ namespace {
 void print_usage() {
   std::cout << "btfvq: compress measured BTFs with multi-level vector quantization\n\nusage:\n";
   for (const auto& [name, c] : btfvq::cli::registry()) std::cout << "  btfvq " << c.usage << "\n      " << c.summary << "\n";
-  std::cout << "\nenvironment: BTFVQ_DEVICE=auto|opencl|cpu-reference, BTFVQ_LOG=info|debug|warn\n";
+  std::cout << "\nenvironment: BTFVQ_DEVICE=auto|opencl|cpu-reference, BTFVQ_LOG=info|debug|warn\n"
+               "             BTFVQ_SERVER=URL, BTFVQ_TOKEN=TOKEN (remote commands)\n";
 }
 
 // Exit codes: 0 ok, 1 internal or device failure, 2 bad input or usage, 3 corrupt data, 4 not found.

@@ -1,0 +1,105 @@
+// `btfvq submit`: sends materials to a server as one job and prints the job id. Local files are
+// uploaded first (PUT /v1/uploads/<random id>, streamed, sha256-checked by the server).
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <random>
+
+#include "client/cli.h"
+#include "client/http_client.h"
+#include "client/progress_bar.h"
+#include "pipeline/error.h"
+#include "pipeline/sha256.h"
+
+namespace btfvq::cli {
+namespace {
+using nlohmann::json;
+
+std::string random_upload_id() {
+  std::mt19937_64 rng{std::random_device{}()};
+  static const char* digits = "0123456789abcdef";
+  std::string id = "u";
+  for (int i = 0; i < 16; ++i) id += digits[rng() & 15];
+  return id;
+}
+
+json synthetic_source(const std::string& spec, int64_t seed) {
+  const auto colon = spec.find(':');
+  const std::string preset = spec.substr(0, colon);
+  int size = 64;
+  if (colon != std::string::npos) {
+    const std::string s = spec.substr(colon + 1);
+    size_t used = 0;
+    try {
+      size = std::stoi(s, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (used == 0 || used != s.size()) throw InputError("--synthetic " + spec + ": SIZE must be an integer");
+  }
+  if (preset.empty()) throw InputError("--synthetic needs PRESET[:SIZE]");
+  return {{"synthetic", {{"preset", preset}, {"size", size}, {"seed", seed}}}};
+}
+
+int run_submit(const Args& args) {
+  HttpClient client(remote_from(args));
+  const std::string database = args.require("db");
+  const int64_t seed = args.integer("seed", 1, 0, 2147483647);
+
+  json sources = json::array();
+  for (const auto& s : args.all("synthetic")) sources.push_back(synthetic_source(s, seed));
+  for (const auto& p : args.all("path")) sources.push_back({{"path", p}});
+  std::vector<std::string> uploads = args.all("upload");
+  for (const auto& file : uploads)
+    if (!std::filesystem::exists(file)) throw InputError("--upload: '" + file + "' does not exist");
+  if (sources.empty() && uploads.empty()) throw InputError("nothing to submit: give --synthetic, --upload or --path");
+
+  json pipeline = json::object();
+  if (auto config = args.get("config")) {
+    std::ifstream in(*config);
+    if (!in) throw InputError("--config: cannot read '" + *config + "'");
+    try {
+      pipeline = json::parse(in);
+    } catch (const json::exception& e) {
+      throw InputError("--config '" + *config + "': " + e.what());
+    }
+  }
+
+  // Uploads go first so that a failed upload submits nothing.
+  for (const auto& file : uploads) {
+    const std::string id = random_upload_id();
+    const std::string sha = sha256_file(file);
+    ProgressBar bar("upload " + std::filesystem::path(file).filename().string());
+    const json reply = client.put_file("/v1/uploads/" + id, file, sha,
+                                       [&](uint64_t done, uint64_t total) { bar.update_bytes(done, total); });
+    bar.finish(ProgressBar::format_bytes(reply.value("size", uint64_t(0))) + " uploaded as " + id);
+    sources.push_back({{"upload", id}});
+  }
+
+  const auto& names = args.all("name");
+  if (!names.empty() && names.size() != sources.size())
+    throw InputError("--name given " + std::to_string(names.size()) + " times for " + std::to_string(sources.size()) +
+                     " materials (give one per material, in the order --synthetic, --path, --upload)");
+  json materials = json::array();
+  for (size_t i = 0; i < sources.size(); ++i) {
+    json m = {{"source", sources[i]}};
+    if (!names.empty()) m["name"] = names[i];
+    materials.push_back(m);
+  }
+  json request = {{"database", database}, {"materials", materials}};
+  if (!pipeline.empty()) request["pipeline"] = pipeline;
+  const json job = client.post_json("/v1/jobs", request);
+  std::cout << job.at("id").get<std::string>() << "\n";
+  return 0;
+}
+
+CommandRegistrar reg({"submit",
+                      "submit --server URL --db NAME (--synthetic PRESET[:SIZE] | --upload PATH | --path SERVER_PATH)... "
+                      "[--name NAME]... [--seed S] [--config overrides.json]",
+                      "submit materials to a btfvq server as one job; prints the job id",
+                      {"server", "token", "db", "synthetic", "upload", "path", "name", "seed", "config"},
+                      {},
+                      run_submit});
+
+}  // namespace
+}  // namespace btfvq::cli

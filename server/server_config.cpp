@@ -1,0 +1,55 @@
+#include "server/server_config.h"
+
+#include <cstdlib>
+
+#include "pipeline/config.h"
+#include "pipeline/error.h"
+
+namespace btfvq::server {
+
+std::pair<std::string, int> parse_listen(const std::string& value, const std::string& what) {
+  const auto colon = value.rfind(':');
+  if (colon == std::string::npos || colon == 0)
+    throw ConfigError(what + ": '" + value + "' is not HOST:PORT");
+  const std::string port = value.substr(colon + 1);
+  size_t used = 0;
+  long n = -1;
+  try {
+    n = std::stol(port, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  if (used == 0 || used != port.size() || n < 0 || n > 65535)
+    throw ConfigError(what + ": port '" + port + "' is not in 0..65535");
+  return {value.substr(0, colon), int(n)};
+}
+
+ServerConfig load_server_config(const ServerFlags& flags) {
+  auto d = ParameterDictionary::embedded_default("server");
+  if (flags.config_file) d.merge(ParameterDictionary::load_file(*flags.config_file));
+  ServerConfig c;
+  std::tie(c.host, c.port) = parse_listen(d.string("listen"), d.origin() + ": listen");
+  c.service.data_dir = d.string("data_dir");
+  c.service.workers = d.integer("workers", 1, 64);
+  c.service.input_root = d.string("input_root");
+  c.service.max_upload_bytes = uint64_t(d.number("max_upload_bytes", 1, 1e15));
+  c.service.max_expanded_bytes = uint64_t(d.number("max_expanded_bytes", 1, 1e16));
+  c.http.max_request_bytes = uint64_t(d.number("max_request_bytes", 1024, 1 << 30));
+  c.http.threads = d.integer("http_threads", 2, 1024);
+  c.http.token = d.string("token");
+  c.log_level = d.string("log_level");
+  d.check_unused();
+
+  if (flags.listen) std::tie(c.host, c.port) = parse_listen(*flags.listen, "--listen");
+  if (flags.data_dir) c.service.data_dir = *flags.data_dir;
+  if (flags.input_root) c.service.input_root = *flags.input_root;
+  if (flags.workers) {
+    if (*flags.workers < 1 || *flags.workers > 64) throw ConfigError("--workers must be in 1..64");
+    c.service.workers = *flags.workers;
+  }
+  if (const char* token = std::getenv("BTFVQ_TOKEN"); token && *token) c.http.token = token;
+  if (c.service.data_dir.empty()) throw ConfigError("data_dir must not be empty");
+  return c;
+}
+
+}  // namespace btfvq::server
