@@ -1,8 +1,8 @@
 // Submit-time checks that need the pipeline: the synthetic presets that exist, and the check of a
-// job's pipeline overrides against configs/pipeline.json: every key must
-// exist in the defaults with the same JSON type, so that a typo is a 400 now rather than a failed
-// job later. Value ranges are checked by the pipeline's own ParameterDictionary getters when the
-// job runs (a ConfigError there fails the job with the key named).
+// job's pipeline overrides against configs/pipeline.json: every key must exist in the defaults with
+// the same JSON type, and the merged settings must pass the pipeline's own validation (ranges,
+// NaN), so that a typo or an out-of-range threshold is a 400 now rather than a failed job later.
+#include "pipeline/compress.h"
 #include "pipeline/config.h"
 #include "pipeline/error.h"
 #include "pipeline/synthetic.h"
@@ -39,7 +39,10 @@ void check_against(const nlohmann::json& defaults, const nlohmann::json& overrid
 
 void validate_pipeline_overrides(const nlohmann::json& overrides) {
   if (!overrides.is_object()) throw InputError("pipeline: must be an object", "invalid_request");
-  check_against(ParameterDictionary::embedded_default("pipeline").json(), overrides, "pipeline");
+  auto config = ParameterDictionary::embedded_default("pipeline");
+  check_against(config.json(), overrides, "pipeline");
+  config.merge(ParameterDictionary(overrides, "pipeline"));
+  validate_pipeline_config(config);
 }
 
 std::vector<std::string> synthetic_presets() {

@@ -1,6 +1,4 @@
-// The real executor: turns a job into a database with the pipeline library. Pending until
-// pipeline/synthetic.h, pipeline/database.h and pipeline/compress.h link in this branch; the
-// integrator renames this file to pipeline_executor.cpp and deletes pipeline_executor_stub.cpp.
+// The executor: turns a job into a database with the pipeline library.
 //
 // Progress: each material gets an equal share of the job; within it, loading or synthesizing is
 // the first 10 % and compress_material() the remaining 90 % (its own fraction). Writing the file
@@ -77,7 +75,8 @@ Executor make_pipeline_executor() {
       options.cancelled = ctx.cancelled;
       options.progress = [&](const CompressProgress& p) {
         JobProgress jp{p.stage, p.phase, 0, p.texels_done, p.texels_total, {}, m.name};
-        for (size_t k = 0; k < jp.codebook_sizes.size(); ++k) jp.codebook_sizes[k] = p.sizes[k];
+        const CodebookSizes& z = p.sizes;
+        jp.codebook_sizes = {z.p1, z.c, z.i1, z.i2, z.p2, z.m, z.p3, z.p4};
         report(jp, kLoadShare + (1 - kLoadShare) * p.fraction);
       };
       const CompressReport r = compress_material(db, sample, m.name, options);
@@ -86,6 +85,7 @@ Executor make_pipeline_executor() {
 
     ctx.progress({"write", 0, 1.0, 0, 0, {}, ""});
     // Sections unchanged since the previous version are copied from it byte for byte.
+    quantize_new_rows(db);
     const std::vector<uint8_t> bytes = serialize_database(db, {}, previous.empty() ? nullptr : &previous_bytes);
     std::ofstream file(out, std::ios::binary | std::ios::trunc);
     file.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
