@@ -5,7 +5,7 @@
 #include <mutex>
 
 #include "client/cli.h"
-#include "client/progress.h"
+#include "client/progress_bar.h"
 #include "pipeline/compress.h"
 #include "pipeline/database.h"
 #include "pipeline/sample_io.h"
@@ -40,13 +40,13 @@ int run_compress(const Args& a) {
     if (db.find(name)) throw InputError("'" + out + "' already has a material named '" + name + "'");
     MeasuredSample sample;
     {
-      Progress bar("load " + name);
+      ProgressBar bar("load " + name);
       sample = load_sample(input, [&](size_t done, size_t total) { bar.update(double(done) / double(total)); });
       bar.finish(std::to_string(sample.width()) + " x " + std::to_string(sample.height()) + ", " +
                  std::to_string(sample.pair_count()) + " images");
     }
     std::mutex m;
-    std::unique_ptr<Progress> bar;
+    std::unique_ptr<ProgressBar> bar;
     std::string stage;
     options.progress = [&](const CompressProgress& p) {
       std::lock_guard<std::mutex> lock(m);
@@ -54,7 +54,7 @@ int run_compress(const Args& a) {
         if (bar) bar->finish();
         stage = p.stage;
         if (stage == "done") return;
-        bar = std::make_unique<Progress>(stage + " " + name);
+        bar = std::make_unique<ProgressBar>(stage + " " + name);
       }
       if (bar)
         bar->update(p.texels_total ? double(p.texels_done) / double(p.texels_total) : 0.0,
