@@ -46,9 +46,24 @@ int run_submit(const Args& args) {
   const std::string database = args.require("db");
   const int64_t seed = args.integer("seed", 1, 0, 2147483647);
 
+  // A material is named after its input file unless --name says otherwise (synthetic ones by the
+  // server, after their preset).
+  auto base_name = [](const std::string& path) {
+    std::string n = std::filesystem::path(path).filename().string();
+    if (n.empty()) n = std::filesystem::path(path).parent_path().filename().string();
+    if (n.size() > 4 && n.substr(n.size() - 4) == ".zip") n.resize(n.size() - 4);
+    return n;
+  };
   json sources = json::array();
-  for (const auto& s : args.all("synthetic")) sources.push_back(synthetic_source(s, seed));
-  for (const auto& p : args.all("path")) sources.push_back({{"path", p}});
+  std::vector<std::string> default_names;
+  for (const auto& s : args.all("synthetic")) {
+    sources.push_back(synthetic_source(s, seed));
+    default_names.emplace_back();
+  }
+  for (const auto& p : args.all("path")) {
+    sources.push_back({{"path", p}});
+    default_names.push_back(base_name(p));
+  }
   std::vector<std::string> uploads = args.all("upload");
   for (const auto& file : uploads)
     if (!std::filesystem::exists(file)) throw InputError("--upload: '" + file + "' does not exist");
@@ -74,6 +89,7 @@ int run_submit(const Args& args) {
                                        [&](uint64_t done, uint64_t total) { bar.update_bytes(done, total); });
     bar.finish(ProgressBar::format_bytes(reply.value("size", uint64_t(0))) + " uploaded as " + id);
     sources.push_back({{"upload", id}});
+    default_names.push_back(base_name(file));
   }
 
   const auto& names = args.all("name");
@@ -84,6 +100,7 @@ int run_submit(const Args& args) {
   for (size_t i = 0; i < sources.size(); ++i) {
     json m = {{"source", sources[i]}};
     if (!names.empty()) m["name"] = names[i];
+    else if (!default_names[i].empty()) m["name"] = default_names[i];
     materials.push_back(m);
   }
   json request = {{"database", database}, {"materials", materials}};
