@@ -4,10 +4,10 @@
 BUILD      ?= build
 BUILD_REL  ?= build-release
 JOBS       ?= $(shell nproc)
-DEB_PACKAGES = build-essential cmake pkg-config git ca-certificates \
+DEB_PACKAGES = build-essential cmake pkg-config \
   pocl-opencl-icd opencl-c-headers opencl-clhpp-headers ocl-icd-opencl-dev clinfo \
-  libopenimageio-dev openimageio-tools libspdlog-dev nlohmann-json3-dev libcpp-httplib-dev doctest-dev \
-  libsqlite3-dev libarchive-dev libeigen3-dev libzstd-dev libssl-dev zip unzip curl python3
+  libopenimageio-dev libspdlog-dev nlohmann-json3-dev libcpp-httplib-dev doctest-dev \
+  libsqlite3-dev libarchive-dev libeigen3-dev libzstd-dev unzip curl python3
 
 .PHONY: deps build build-release test demo bench clean install
 

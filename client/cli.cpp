@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 
 #include "pipeline/error.h"
 
@@ -51,6 +52,14 @@ int Args::integer(const std::string& flag, int fallback, int lo, int hi) const {
     throw InputError("--" + flag + " must be an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) +
                      "] (got '" + *v + "')");
   return int(n);
+}
+
+std::string material_name_of(const std::string& input_path) {
+  std::filesystem::path p(input_path);
+  while (!p.empty() && p.filename().empty()) p = p.parent_path();
+  std::string name = p.filename().string();
+  if (name.size() > 4 && name.substr(name.size() - 4) == ".zip") name.resize(name.size() - 4);
+  return name;
 }
 
 Direction parse_direction(const std::string& text, const std::string& flag) {

@@ -50,6 +50,9 @@ struct CommandRegistrar {
 // "THETA,PHI" in degrees, e.g. "45,120"; theta in [0, 90]. Throws InputError naming the flag.
 Direction parse_direction(const std::string& text, const std::string& flag);
 
+// The material name an input path stands for: "path/UBO_IMPALLA256.zip" -> "UBO_IMPALLA256".
+std::string material_name_of(const std::string& input_path);
+
 // Parses argv (after the subcommand name) against a command's declared flags.
 Args parse_args(const Command& command, const std::vector<std::string>& argv);
 

@@ -15,15 +15,6 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// "path/UBO_IMPALLA256.zip" -> "UBO_IMPALLA256".
-std::string material_name_of(const std::string& input) {
-  fs::path p(input);
-  while (!p.empty() && p.filename().empty()) p = p.parent_path();
-  std::string name = p.filename().string();
-  if (name.size() > 4 && name.substr(name.size() - 4) == ".zip") name.resize(name.size() - 4);
-  return name;
-}
-
 int run_compress(const Args& a) {
   if (a.positional.empty()) throw InputError("usage: btfvq compress IN... --db OUT.btfdb [--config F]");
   const std::string out = a.require("db");

@@ -48,12 +48,6 @@ int run_submit(const Args& args) {
 
   // A material is named after its input file unless --name says otherwise (synthetic ones by the
   // server, after their preset).
-  auto base_name = [](const std::string& path) {
-    std::string n = std::filesystem::path(path).filename().string();
-    if (n.empty()) n = std::filesystem::path(path).parent_path().filename().string();
-    if (n.size() > 4 && n.substr(n.size() - 4) == ".zip") n.resize(n.size() - 4);
-    return n;
-  };
   json sources = json::array();
   std::vector<std::string> default_names;
   for (const auto& s : args.all("synthetic")) {
@@ -62,7 +56,7 @@ int run_submit(const Args& args) {
   }
   for (const auto& p : args.all("path")) {
     sources.push_back({{"path", p}});
-    default_names.push_back(base_name(p));
+    default_names.push_back(material_name_of(p));
   }
   std::vector<std::string> uploads = args.all("upload");
   for (const auto& file : uploads)
@@ -89,7 +83,7 @@ int run_submit(const Args& args) {
                                        [&](uint64_t done, uint64_t total) { bar.update_bytes(done, total); });
     bar.finish(ProgressBar::format_bytes(reply.value("size", uint64_t(0))) + " uploaded as " + id);
     sources.push_back({{"upload", id}});
-    default_names.push_back(base_name(file));
+    default_names.push_back(material_name_of(file));
   }
 
   const auto& names = args.all("name");
