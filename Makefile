@@ -4,6 +4,7 @@
 BUILD      ?= build
 BUILD_REL  ?= build-release
 JOBS       ?= $(shell nproc)
+BENCH_ARGS ?=
 DEB_PACKAGES = build-essential cmake pkg-config \
   pocl-opencl-icd opencl-c-headers opencl-clhpp-headers ocl-icd-opencl-dev clinfo \
   libopenimageio-dev libspdlog-dev nlohmann-json3-dev libcpp-httplib-dev doctest-dev \
@@ -31,7 +32,7 @@ demo: build
 	@bash scripts/demo.sh $(BUILD)/bin
 
 bench: build-release
-	@bash bench/run.sh $(BUILD_REL)/bin
+	@bash bench/run.sh $(BUILD_REL)/bin $(BENCH_ARGS)
 
 install: build-release
 	cmake --install $(BUILD_REL)

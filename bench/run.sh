@@ -1,8 +1,11 @@
 #!/usr/bin/env bash
 # Runs every benchmark program and rewrites BENCHMARKS.md and bench/results/latest.json.
-# Usage: bash bench/run.sh BIN_DIR   (make bench builds a -O3 -march=native release first)
+# Usage: bash bench/run.sh BIN_DIR [BENCH ARGS...]   (make bench builds a -O3 -march=native release
+# first; `make bench BENCH_ARGS=--quick` runs smaller sizes, and BENCHMARKS.md says so)
 set -euo pipefail
 bin=${1:-build-release/bin}
+shift || true
+extra=("$@")
 root=$(cd "$(dirname "$0")/.." && pwd)
 work=$(mktemp -d /tmp/btfvq-bench.XXXXXX)
 trap 'rm -rf "$work"' EXIT
@@ -12,8 +15,8 @@ for b in "$bin"/bench_*; do
   name=$(basename "$b")
   echo "== $name" >&2
   "$b" --json "$work/$name.json" --scratch "$work/$name.scratch" --testdata "$root/../shared/testdata" \
-       --figures "$root/bench/results" >&2
+       --figures "$root/bench/results" "${extra[@]}" >&2
 done
 python3 "$root/bench/report.py" --results "$work" --out "$root/BENCHMARKS.md" --json "$root/bench/results/latest.json" \
-  --command "make bench"
+  --command "make bench${extra:+ BENCH_ARGS=\"${extra[*]}\"}"
 echo "wrote BENCHMARKS.md and bench/results/latest.json" >&2
