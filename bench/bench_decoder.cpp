@@ -3,12 +3,15 @@
 // directions uniformly random: cache-hostile) and coherent (whole images under one light/view, as a
 // renderer's inner loop sees them). Paper Sec. 6: 0.31-1.36 M evaluations/s on one core.
 #include <ctime>
+#include <tuple>
 #include <random>
 #include <sstream>
 
 #include "bench/bench_common.h"
 #include "pipeline/btfbase.h"
 #include "pipeline/decoder.h"
+#include "pipeline/image.h"
+#include "pipeline/reconstruct.h"
 #include "pipeline/opencl_runtime.h"
 
 using namespace btfvq;
@@ -81,6 +84,15 @@ int main(int argc, char** argv) {
                      {"batch_reference_per_s", r.batch_reference}};
   }
   md << "\nPaper (Sec. 6, one core of a 2.83 GHz Xeon): 0.31-1.36 M evaluations/s depending on coherence.\n";
+  // A picture of the real fabric as our decoder sees it (FORMAT.md's rules), for a person to check.
+  const Database proposte = import_btfbase((args.testdata / "btfbase" / "proposte").string());
+  for (const auto& [light, view, file] : {std::tuple{Direction{0, 0}, Direction{0, 0}, "proposte_l0-0_v0-0.png"},
+                                          std::tuple{Direction{45, 120}, Direction{30, 60}, "proposte_l45-120_v30-60.png"}}) {
+    write_rgb8_image((args.figures / file).string(), 256, 256, decode_image(proposte, "proposte", light, view));
+    md << "\n![proposte, light " << light.theta << "," << light.phi << ", view " << view.theta << "," << view.phi
+       << "](bench/results/" << file << ")";
+  }
+  md << "\n\nproposte decoded by btfvq from the original compressor's database (../shared/testdata/btfbase/proposte).\n";
   bench::write_section(args, "Decoding throughput", 40, md.str(), figures);
   return 0;
 }
