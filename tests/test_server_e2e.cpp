@@ -1,0 +1,174 @@
+// The real `btfvq-server` binary running real compression jobs, driven by the real `btfvq` CLI on
+// 127.0.0.1: submit -> watch -> download (sha256 verified) -> decode; two jobs into one database;
+// kill -9 in the middle of a job, restart, and the job completes with the same database bytes.
+#include <doctest/doctest.h>
+#include <httplib.h>
+#include <netinet/in.h>
+#include <signal.h>
+#include <sys/socket.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <thread>
+
+#include "pipeline/database.h"
+#include "pipeline/reconstruct.h"
+#include "support/test_paths.h"
+
+using namespace btfvq;
+using namespace btfvq::test;
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace {
+
+int free_port() {
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  ::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr);
+  socklen_t len = sizeof addr;
+  ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len);
+  ::close(fd);
+  return ntohs(addr.sin_port);
+}
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+// One btfvq-server process over a data directory; stop() is a clean SIGTERM, kill() a kill -9.
+class ServerProcess {
+ public:
+  ServerProcess(const fs::path& data, int port) : data_(data), port_(port) { start(); }
+  ~ServerProcess() { stop(); }
+
+  void start() {
+    const std::string server = (bin_dir() / "btfvq-server").string();
+    const std::string listen = "127.0.0.1:" + std::to_string(port_), data = data_.string();
+    const std::string log = (data_.parent_path() / (data_.filename().string() + ".log")).string();
+    pid_ = ::fork();
+    REQUIRE(pid_ >= 0);
+    if (pid_ == 0) {
+      if (FILE* f = std::freopen(log.c_str(), "a", stderr)) (void)f;
+      ::execl(server.c_str(), server.c_str(), "--listen", listen.c_str(), "--data", data.c_str(), "--workers", "1",
+              static_cast<char*>(nullptr));
+      ::_exit(127);
+    }
+    httplib::Client c(url());
+    for (int i = 0; i < 1000; ++i) {
+      auto r = c.Get("/healthz");
+      if (r && r->status == 200) return;
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    FAIL("btfvq-server did not answer /healthz");
+  }
+  void stop() { signal_and_wait(SIGTERM); }
+  void kill9() { signal_and_wait(SIGKILL); }
+  std::string url() const { return "http://127.0.0.1:" + std::to_string(port_); }
+
+ private:
+  void signal_and_wait(int sig) {
+    if (pid_ <= 0) return;
+    ::kill(pid_, sig);
+    int status = 0;
+    ::waitpid(pid_, &status, 0);
+    pid_ = -1;
+  }
+  fs::path data_;
+  int port_;
+  pid_t pid_ = -1;
+};
+
+struct Run {
+  int status;
+  std::string out;
+};
+Run cli(const fs::path& dir, const std::string& args) {
+  Run r;
+  const fs::path out = dir / "cli-stdout.txt";
+  std::string all;
+  r.status = run_command((bin_dir() / "btfvq").string() + " " + args + " > " + out.string(), &all);
+  r.out = slurp(out);
+  while (!r.out.empty() && (r.out.back() == '\n' || r.out.back() == ' ')) r.out.pop_back();
+  if (r.status != 0) MESSAGE("btfvq " << args << " -> " << r.status << ": " << all);
+  return r;
+}
+
+json get_json(const std::string& url, const std::string& path) {
+  httplib::Client c(url);
+  auto r = c.Get(path.c_str());
+  REQUIRE(r);
+  return json::parse(r->body);
+}
+
+}  // namespace
+
+TEST_CASE("real jobs: submit, watch, download with sha256, two versions of one database, decode") {
+  const fs::path dir = scratch_dir("e2e-jobs");
+  ServerProcess server(dir / "data", free_port());
+  const std::string s = "--server " + server.url();
+
+  const Run first = cli(dir, "submit " + s + " --db shop --synthetic tile:8 --name tile8");
+  REQUIRE(first.status == 0);
+  CHECK(cli(dir, "watch " + s + " " + first.out).status == 0);
+  const Run second = cli(dir, "submit " + s + " --db shop --synthetic wood:8 --name wood8");
+  REQUIRE(second.status == 0);
+  CHECK(cli(dir, "watch " + s + " " + second.out).status == 0);
+
+  const json info = get_json(server.url(), "/v1/databases/shop");
+  CHECK(info["versions"].size() == 2);
+  REQUIRE(cli(dir, "download " + s + " shop --out " + (dir / "shop.btfdb").string()).status == 0);
+  const Database db = read_database((dir / "shop.btfdb").string());
+  REQUIRE(db.materials.size() == 2);
+  CHECK(db.materials[0].name == "tile8");
+  CHECK(db.materials[1].name == "wood8");
+  const MeasuredSample tile = reconstruct_bonn(db, "tile8");
+  double sum = 0;
+  for (uint8_t v : tile.ldr_data()) sum += v;
+  CHECK(sum / double(tile.ldr_data().size()) > 20.0);  // a real, lit material came back
+  CHECK(cli(dir, "ls " + s).out.find("shop") != std::string::npos);
+}
+
+TEST_CASE("kill -9 during a job, restart: the job completes with the same database as an uninterrupted run") {
+  const fs::path dir = scratch_dir("e2e-kill");
+  const std::string job_args = " --db fabric --synthetic fabric:20 --name f --seed 4";
+  // Uninterrupted reference run.
+  std::string reference;
+  {
+    ServerProcess server(dir / "clean", free_port());
+    const Run job = cli(dir, "submit --server " + server.url() + job_args);
+    REQUIRE(job.status == 0);
+    REQUIRE(cli(dir, "watch --server " + server.url() + " " + job.out).status == 0);
+    REQUIRE(cli(dir, "download --server " + server.url() + " fabric --out " + (dir / "clean.btfdb").string()).status == 0);
+    reference = slurp(dir / "clean.btfdb");
+  }
+  const int port = free_port();
+  ServerProcess server(dir / "killed", port);
+  const Run job = cli(dir, "submit --server " + server.url() + job_args);
+  REQUIRE(job.status == 0);
+  // Wait until the job is encoding, then kill the server without warning.
+  bool encoding = false;
+  for (int i = 0; i < 3000 && !encoding; ++i) {
+    const json j = get_json(server.url(), "/v1/jobs/" + job.out);
+    encoding = j.value("state", "") == "running" && j.value("stage", "").rfind("phase", 0) == 0;
+    if (!encoding) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  REQUIRE(encoding);
+  server.kill9();
+  server.start();
+  REQUIRE(cli(dir, "watch --server " + server.url() + " " + job.out).status == 0);
+  REQUIRE(cli(dir, "download --server " + server.url() + " fabric --out " + (dir / "killed.btfdb").string()).status == 0);
+  CHECK(slurp(dir / "killed.btfdb") == reference);
+  const json info = get_json(server.url(), "/v1/databases/fabric");
+  CHECK(info["versions"].size() == 1);  // nothing half-written was published
+}
