@@ -9,6 +9,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
@@ -18,6 +19,7 @@
 
 #include "pipeline/database.h"
 #include "pipeline/reconstruct.h"
+#include "pipeline/sha256.h"
 #include "support/test_paths.h"
 
 using namespace btfvq;
@@ -171,4 +173,41 @@ TEST_CASE("kill -9 during a job, restart: the job completes with the same databa
   CHECK(slurp(dir / "killed.btfdb") == reference);
   const json info = get_json(server.url(), "/v1/databases/fabric");
   CHECK(info["versions"].size() == 1);  // nothing half-written was published
+}
+
+TEST_CASE("20 concurrent clients poll and download while a job runs: no failed request, no corrupt download") {
+  const fs::path dir = scratch_dir("e2e-load");
+  ServerProcess server(dir / "data", free_port());
+  const std::string s = "--server " + server.url();
+  const Run first = cli(dir, "submit " + s + " --db load --synthetic tile:8 --name a");
+  REQUIRE(first.status == 0);
+  REQUIRE(cli(dir, "watch " + s + " " + first.out).status == 0);
+  const Run running = cli(dir, "submit " + s + " --db load --synthetic fabric:16 --name b");
+  REQUIRE(running.status == 0);
+
+  std::atomic<int> failures{0}, corrupt{0}, downloads{0}, polls{0};
+  std::vector<std::thread> clients;
+  for (int c = 0; c < 20; ++c)
+    clients.emplace_back([&] {
+      httplib::Client http(server.url());
+      http.set_read_timeout(30, 0);
+      for (int i = 0; i < 10; ++i) {  // bounded: 20 clients x 10 rounds
+        auto st = http.Get(("/v1/jobs/" + running.out).c_str());
+        if (!st || st->status != 200) ++failures;
+        else ++polls;
+        auto dl = http.Get("/v1/databases/load/content");
+        if (!dl || dl->status != 200) {
+          ++failures;
+          continue;
+        }
+        ++downloads;
+        if (sha256_hex(dl->body) != dl->get_header_value("X-Content-Sha256")) ++corrupt;
+      }
+    });
+  for (auto& t : clients) t.join();
+  CHECK(failures == 0);
+  CHECK(corrupt == 0);
+  CHECK(polls == 200);
+  CHECK(downloads == 200);
+  CHECK(cli(dir, "watch " + s + " " + running.out).status == 0);
 }
