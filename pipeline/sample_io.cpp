@@ -213,6 +213,8 @@ Bytes read_entry_data(ArchiveReader& r, archive_entry* e, const std::string& lab
     if (n == 0) break;
     data.insert(data.end(), buf, buf + n);
     if (data.size() > kMaxImageBytes) throw InputError(label + ": image entry is implausibly large");
+    if (archive_entry_size_is_set(e) && data.size() > uint64_t(std::max<la_int64_t>(archive_entry_size(e), 0)))
+      throw InputError(label + ": the entry expands beyond the size it declares; the archive is rejected");
   }
   return data;
 }
@@ -248,6 +250,7 @@ struct Catalogue {
   std::vector<ImageEntry> images;  // directories: pair order; archives: archive order
   std::vector<Direction> views, lights;
   Dynamic dynamic = Dynamic::LDR;
+  uint64_t expanded_bytes = 0;  // archives: the uncompressed sizes their entries declare
 };
 
 void add_image(Catalogue& c, const std::string& relative, const std::string& label, const fs::path& file,
@@ -286,6 +289,8 @@ void list_archive(Catalogue& c) {
       throw InputError(c.source + ": archive entry " + quoted(name) +
                        " has an absolute path or '..' component; the archive is rejected");
     if (archive_entry_filetype(e) == AE_IFREG) files.emplace_back(name, ordinal);
+    // A zip bomb declares what it will expand to; a lying entry is caught while reading it.
+    if (archive_entry_size_is_set(e) && archive_entry_size(e) > 0) c.expanded_bytes += uint64_t(archive_entry_size(e));
     ++ordinal;
   }
   for (const auto& [name, ord] : files) add_image(c, name, c.source + ":" + name, {}, ord);
@@ -347,7 +352,7 @@ void arrange(Catalogue& c) {
               [](const ImageEntry& a, const ImageEntry& b) { return a.pair_index < b.pair_index; });
 }
 
-Catalogue catalogue(const std::string& path) {
+Catalogue catalogue(const std::string& path, uint64_t max_expanded_bytes) {
   Catalogue c;
   c.source = path;
   std::error_code ec;
@@ -358,6 +363,9 @@ Catalogue catalogue(const std::string& path) {
   } else {
     c.archive = true;
     list_archive(c);
+    if (max_expanded_bytes > 0 && c.expanded_bytes > max_expanded_bytes)
+      throw InputError(path + ": the archive expands to " + std::to_string(c.expanded_bytes) + " bytes, more than the " +
+                       std::to_string(max_expanded_bytes) + " allowed");
   }
   arrange(c);
   return c;
@@ -743,8 +751,8 @@ bool is_sample_path(const std::string& path) {
   }
 }
 
-MeasuredSample load_sample(const std::string& path, const ProgressFn& progress) {
-  const Catalogue c = catalogue(path);
+MeasuredSample load_sample(const std::string& path, const ProgressFn& progress, uint64_t max_expanded_bytes) {
+  const Catalogue c = catalogue(path, max_expanded_bytes);
   const Reference ref = first_header(c);
   // A hostile header (say 100000 x 100000) must be an input error, not an allocation failure.
   const uint64_t bytes = uint64_t(ref.width) * uint64_t(ref.height) * c.images.size() * 3 *
@@ -763,8 +771,8 @@ MeasuredSample load_sample(const std::string& path, const ProgressFn& progress) 
   return s;
 }
 
-SampleInfo inspect_sample(const std::string& path) {
-  const Catalogue c = catalogue(path);
+SampleInfo inspect_sample(const std::string& path, uint64_t max_expanded_bytes) {
+  const Catalogue c = catalogue(path, max_expanded_bytes);
   const Reference ref = first_header(c);
   SampleInfo info;
   info.width = ref.width;

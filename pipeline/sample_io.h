@@ -35,10 +35,12 @@ bool is_sample_path(const std::string& path);
 // unreadable or truncated images, wrong image size or channel count, names that do not parse, mixed
 // LDR/HDR, duplicate or missing directions (a sample drawn from the Bonn-81 set must hold all 81 x 81
 // pairs), zip entries with absolute paths or "..", an empty input or a path that does not exist.
-MeasuredSample load_sample(const std::string& path, const ProgressFn& progress = {});
+// max_expanded_bytes > 0 rejects an archive whose entries declare more uncompressed bytes than that
+// (zip bombs), and any entry that expands beyond what it declares.
+MeasuredSample load_sample(const std::string& path, const ProgressFn& progress = {}, uint64_t max_expanded_bytes = 0);
 
 // Reads only names and one image header: fast. Validates the names as load_sample does.
-SampleInfo inspect_sample(const std::string& path);
+SampleInfo inspect_sample(const std::string& path, uint64_t max_expanded_bytes = 0);
 
 // The same summary for a sample already in memory.
 SampleInfo describe_sample(const MeasuredSample& sample);

@@ -24,7 +24,7 @@ std::vector<uint8_t> read_bytes(const std::string& path) {
   return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
 }
 
-MeasuredSample load_material(const MaterialSpec& m, const ProgressFn& progress) {
+MeasuredSample load_material(const MaterialSpec& m, const ProgressFn& progress, uint64_t max_expanded_bytes) {
   if (m.kind == "synthetic") {
     SynthOptions o;
     o.preset = m.preset;
@@ -33,9 +33,9 @@ MeasuredSample load_material(const MaterialSpec& m, const ProgressFn& progress) 
     o.progress = progress;
     return synthesize(o);
   }
-  // Uploads and server-side paths: a zip/tar or a directory in the UBO2003 layout. The loader
-  // enforces the zip-bomb limit (JobContext::max_expanded_bytes) once it exposes one.
-  return load_sample(m.file, progress);
+  // Uploads and server-side paths: a zip/tar or a directory in the UBO2003 layout, with the
+  // zip-bomb limit.
+  return load_sample(m.file, progress, max_expanded_bytes);
 }
 
 }  // namespace
@@ -65,9 +65,12 @@ Executor make_pipeline_executor() {
       };
       const std::string load_stage = m.kind == "synthetic" ? "synthesize" : "load";
       report({load_stage, 0, 0, 0, 0, {}, m.name}, 0);
-      const MeasuredSample sample = load_material(m, [&](size_t done, size_t total) {
-        report({load_stage, 0, 0, done, total, {}, m.name}, total ? kLoadShare * double(done) / double(total) : 0);
-      });
+      const MeasuredSample sample = load_material(
+          m,
+          [&](size_t done, size_t total) {
+            report({load_stage, 0, 0, done, total, {}, m.name}, total ? kLoadShare * double(done) / double(total) : 0);
+          },
+          ctx.max_expanded_bytes);
       if (ctx.cancelled()) throw CancelledError();
 
       CompressOptions options;

@@ -1,5 +1,7 @@
 #include "server/service.h"
 
+#include "pipeline/sample_io.h"
+
 #include <fcntl.h>
 #include <spdlog/spdlog.h>
 #include <unistd.h>
@@ -285,6 +287,16 @@ bool Service::is_final(const std::string& state) {
 
 // ---------------------------------------------------------------- submission
 
+// A sample is checked when the job is submitted (names, escaping archive entries, the expanded size
+// of an archive, one image header), so that such input is a 400 and no job is created.
+void Service::check_sample(const fs::path& file, const std::string& field) const {
+  try {
+    inspect_sample(file.string(), config_.max_expanded_bytes);
+  } catch (const InputError& e) {
+    throw InputError(field + ": " + e.what(), "invalid_sample");
+  }
+}
+
 fs::path Service::resolve_input_path(const std::string& given, const std::string& field) const {
   if (config_.input_root.empty())
     throw ForbiddenError(field + ": server-side paths are disabled (no input_root is configured)");
@@ -343,11 +355,13 @@ json Service::validate_request(const json& request, const std::string& id) {
         throw InputError(src + ".upload: no completed upload '" + upload + "'", "invalid_request");
       out["source"] = {{"upload", upload}};
       default_name = upload;
+      check_sample(upload_path(upload), src + ".upload");
     } else if (source.contains("path")) {
       const std::string given = require_string(source, "path", src);
       const fs::path real = resolve_input_path(given, src + ".path");
       out["source"] = {{"path", real.string()}};
       default_name = real.stem().string();
+      check_sample(real, src + ".path");
     } else {
       const json& syn = require_object(source["synthetic"], src + ".synthetic");
       only_keys(syn, src + ".synthetic", {"preset", "size", "seed"});

@@ -131,6 +131,7 @@ class Service {
   void notify();  // under mutex_
   JobSpec parse_spec(const JobRecord& job) const;
   nlohmann::json validate_request(const nlohmann::json& request, const std::string& id);
+  void check_sample(const std::filesystem::path& file, const std::string& field) const;
   std::filesystem::path resolve_input_path(const std::string& given, const std::string& field) const;
   nlohmann::json job_json(const JobRecord& job);  // under mutex_
   std::filesystem::path upload_path(const std::string& id) const;

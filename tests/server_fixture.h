@@ -3,6 +3,8 @@
 // file (so the queue, publication and downloads are exercised for real), and a server started
 // in-process on 127.0.0.1 with a random free port over a scratch data directory.
 #include <doctest/doctest.h>
+#include <archive.h>
+#include <archive_entry.h>
 #include <httplib.h>
 #include <spdlog/spdlog.h>
 
@@ -21,6 +23,7 @@
 #include <vector>
 
 #include "pipeline/error.h"
+#include "pipeline/sample_io.h"
 #include "pipeline/sha256.h"
 #include "server/http_server.h"
 #include "server/service.h"
@@ -47,6 +50,40 @@ inline std::string read_file(const fs::path& p) {
 inline void write_file(const fs::path& p, const std::string& bytes) {
   std::ofstream out(p, std::ios::binary | std::ios::trunc);
   out << bytes;
+}
+
+// A zip (deflated) with the given (name, content) entries, written with libarchive as a hostile
+// client would: names are not checked here.
+inline void write_archive(const fs::path& path, const std::vector<std::pair<std::string, std::string>>& entries) {
+  archive* a = archive_write_new();
+  archive_write_set_format_zip(a);
+  archive_write_set_options(a, "zip:compression=deflate");
+  REQUIRE(archive_write_open_filename(a, path.c_str()) == ARCHIVE_OK);
+  for (const auto& [name, content] : entries) {
+    archive_entry* e = archive_entry_new();
+    archive_entry_set_pathname(e, name.c_str());
+    archive_entry_set_size(e, la_int64_t(content.size()));
+    archive_entry_set_filetype(e, AE_IFREG);
+    archive_entry_set_perm(e, 0644);
+    archive_write_header(a, e);
+    archive_write_data(a, content.data(), content.size());
+    archive_entry_free(e);
+  }
+  archive_write_close(a);
+  archive_write_free(a);
+}
+
+// The bytes of a real (tiny: 2 x 2 texels, 81 x 81 directions) UBO2003 zip: the server checks a
+// sample's names and first image when a job is submitted.
+inline const std::string& tiny_sample_zip() {
+  static const std::string bytes = [] {
+    MeasuredSample s = make_bonn_sample(2, 2, Dynamic::LDR);
+    for (size_t i = 0; i < s.ldr_data().size(); ++i) s.ldr_data()[i] = uint8_t(40 + i % 150);
+    const fs::path p = scratch_dir("tiny-sample") / "tiny.zip";
+    write_sample(s, p.string());
+    return read_file(p);
+  }();
+  return bytes;
 }
 
 // Behaviour by synthetic preset: "wool" compresses (progress through phases 1-3, then writes),

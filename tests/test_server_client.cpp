@@ -137,8 +137,7 @@ TEST_CASE("download resumes a partial file with a Range request and verifies the
 TEST_CASE("submit uploads local files first; BTFVQ_SERVER stands in for --server") {
   TestServer t("cli-upload");
   const fs::path dir = t.root;
-  std::string payload;
-  for (int i = 0; i < 300000; ++i) payload += char('0' + i % 10);
+  const std::string& payload = tiny_sample_zip();
   write_file(dir / "sample.zip", payload);
   auto submit = run_cli(dir, "submit --db cars --upload " + (dir / "sample.zip").string() + " --name impalla",
                         "BTFVQ_SERVER=" + t.url());

@@ -176,7 +176,7 @@ TEST_CASE("uploads: streamed, hashed, verified, limited; a dead client leaves no
 TEST_CASE("an uploaded sample can be used by a job") {
   TestServer t("http-upload-job");
   auto c = t.client();
-  const std::string payload = "pretend this is UBO_IMPALLA256.zip";
+  const std::string& payload = tiny_sample_zip();
   REQUIRE(c.Put("/v1/uploads/impalla", payload, "application/zip")->status == 201);
   json request = {{"database", "cars"}, {"materials", json::array({{{"source", {{"upload", "impalla"}}}}})}};
   auto r = c.Post("/v1/jobs", request.dump(), "application/json");
@@ -311,7 +311,12 @@ TEST_CASE("bad job requests get a 4xx naming the field and change no state") {
   server::ServiceConfig config;
   config.input_root = scratch_dir("http-bad-inputs");
   fs::create_directories(config.input_root / "in");
-  write_file(config.input_root / "in" / "a.zip", "zip");
+  write_file(config.input_root / "in" / "a.zip", tiny_sample_zip());
+  write_file(config.input_root / "in" / "junk.zip", "not an archive");
+  write_archive(config.input_root / "in" / "evil.zip", {{"../evil/00000 tl000 pl000 tv000 pv000.jpg", "x"}});
+  // A zip bomb: one entry that declares (and would expand to) more than the limit below.
+  write_archive(config.input_root / "in" / "bomb.zip", {{"00000 tl000 pl000 tv000 pv000.jpg", std::string(24u << 20, '\0')}});
+  config.max_expanded_bytes = 16u << 20;
   server::HttpOptions options;
   options.max_request_bytes = 4096;
   TestServer t("http-bad", config, options);
@@ -350,6 +355,9 @@ TEST_CASE("bad job requests get a 4xx naming the field and change no state") {
        "pipeline.grid.n_beta"},
       {R"({"database": "d", "materials": [{"source": {"path": "in/a.zip"}}], "pipeline": {"grid": {"n_beta": 11.5}}})", 400,
        "pipeline.grid.n_beta"},
+      {R"({"database": "d", "materials": [{"source": {"path": "in/junk.zip"}}]})", 400, "materials[0].source.path"},
+      {R"({"database": "d", "materials": [{"source": {"path": "in/evil.zip"}}]})", 400, "'..'"},
+      {R"({"database": "d", "materials": [{"source": {"path": "in/bomb.zip"}}]})", 400, "expands to"},
       {R"({"database": "d", "materials": [{"source": {"path": "in/a.zip"}}], "pad": ")" + std::string(5000, ' ') + "\"}",
        413, "exceeds"},
   };

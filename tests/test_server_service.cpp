@@ -188,7 +188,7 @@ TEST_CASE("job validation names the field and changes nothing") {
   const fs::path dir = scratch_dir("validate");
   const fs::path inputs = scratch_dir("validate-inputs");
   fs::create_directories(inputs / "ok");
-  write_file(inputs / "ok" / "sample.zip", "zip");
+  write_file(inputs / "ok" / "sample.zip", tiny_sample_zip());
   const fs::path outside = scratch_dir("validate-outside");
   write_file(outside / "secret.zip", "secret");
   fs::create_symlink(outside / "secret.zip", inputs / "link.zip");
