@@ -211,3 +211,25 @@ TEST_CASE("20 concurrent clients poll and download while a job runs: no failed r
   CHECK(downloads == 200);
   CHECK(cli(dir, "watch " + s + " " + running.out).status == 0);
 }
+
+TEST_CASE("cancel a running job: watch reports it, nothing is published") {
+  const fs::path dir = scratch_dir("e2e-cancel");
+  ServerProcess server(dir / "data", free_port());
+  const Run job = cli(dir, "submit --server " + server.url() + " --db c --synthetic wool:32 --name w");
+  REQUIRE(job.status == 0);
+  bool running = false;
+  for (int i = 0; i < 3000 && !running; ++i) {
+    running = get_json(server.url(), "/v1/jobs/" + job.out).value("state", "") == "running";
+    if (!running) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  REQUIRE(running);
+  httplib::Client http(server.url());
+  auto r = http.Delete(("/v1/jobs/" + job.out).c_str());
+  REQUIRE(r);
+  CHECK(r->status < 300);
+  CHECK(cli(dir, "watch --server " + server.url() + " " + job.out).status == 5);
+  CHECK(get_json(server.url(), "/v1/jobs/" + job.out)["state"] == "cancelled");
+  auto db = http.Get("/v1/databases/c");
+  REQUIRE(db);
+  CHECK(db->status == 404);
+}
