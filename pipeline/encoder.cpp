@@ -12,6 +12,26 @@ namespace {
 
 constexpr double kNoBound = -1e300;
 
+// A composition that misses its parent's threshold is first re-encoded with every threshold below
+// it tightened by this factor, and only then exactly: an exact M slice costs 11 new P1 rows and 121
+// new C values, a tightened one mostly reuses entries.
+constexpr double kRetryFactor = 0.5;
+
+// Scales the encoder's thresholds for the lifetime of the scope (children of a retried entry).
+class TightenedScope {
+ public:
+  TightenedScope(Thresholds& t, double f) : t_(t), saved_(t) {
+    if (f != 1.0) t_ = t_.relaxed(f);
+  }
+  ~TightenedScope() { t_ = saved_; }
+  TightenedScope(const TightenedScope&) = delete;
+  TightenedScope& operator=(const TightenedScope&) = delete;
+
+ private:
+  Thresholds& t_;
+  Thresholds saved_;
+};
+
 Thresholds read_thresholds(const ParameterDictionary& d, const std::string& prefix, double hi) {
   Thresholds t;
   t.p4 = d.number(prefix + ".p4", 0.0, hi);
@@ -717,12 +737,14 @@ Encoder::Match Encoder::encode_p4(const float* texel_in, Ctx& ctx, bool exact) {
       q.views.push_back(make_view(g2_, texel.data() + size_t(c) * samples + size_t(p * n), st, st + n));
     }
   q.order_planes(n);
+  const double p4_bound = bound_for(thresholds_.p4, q.values);
   if (!exact) {
-    const Match found = search_composite(q, 4, bound_for(thresholds_.p4, q.values), ctx);
+    const Match found = search_composite(q, 4, p4_bound, ctx);
     if (found.index >= 0) return found;
   }
-  for (int attempt = 0; attempt < 2; ++attempt) {
-    const bool ex = exact || attempt == 1;
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    const bool ex = exact || attempt == 2;
+    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
     std::vector<uint32_t> idx(static_cast<size_t>(grid_.n_phi_v));
     std::vector<float> sc(idx.size());
     double bright = 0;
@@ -747,7 +769,7 @@ Encoder::Match Encoder::encode_p4(const float* texel_in, Ctx& ctx, bool exact) {
     double score;
     float s;
     evaluate_composite(q, planes.data(), int(planes.size()), kNoBound, ctx, &score, &s);
-    if (!ex && score < bound_for(thresholds_.p4, q.values)) {
+    if (!ex && score < p4_bound) {
       ++ctx.counts.fallbacks;
       continue;
     }
@@ -766,8 +788,9 @@ Encoder::Match Encoder::encode_p3(const Query& q, Ctx& ctx, bool exact) {
     if (found.index >= 0) return found;
   }
   const int nt = grid_.n_theta_v;
-  for (int attempt = 0; attempt < 2; ++attempt) {
-    const bool ex = exact || attempt == 1;
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    const bool ex = exact || attempt == 2;
+    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
     std::vector<uint32_t> idx(static_cast<size_t>(nt));
     std::vector<float> sc(static_cast<size_t>(nt));
     double bright = 0;
@@ -838,8 +861,9 @@ Encoder::Match Encoder::encode_m(const Query& q, Ctx& ctx, bool exact) {
                                      st.data() + size_t((2 * c + 1) * n));
     (c == 0 ? lq : cq).views.push_back(cv);
   }
-  for (int attempt = 0; attempt < 2; ++attempt) {
-    const bool ex = exact || attempt == 1;
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    const bool ex = exact || attempt == 2;
+    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
     const uint32_t p2 = encode_p2(lq, ctx, ex);
     const uint32_t i2 = encode_i2(cq, ctx, ex);
     const PlaneRef plane{p2, i2, 1.0f};
@@ -873,8 +897,9 @@ uint32_t Encoder::encode_p2(const Query& q, Ctx& ctx, bool exact) {
   std::vector<float> sc(static_cast<size_t>(na));
   const ChannelView& x = q.at(0, 0);
   const Affine ax = unit_affine(dyn_, 0, q.unit);
-  for (int attempt = 0; attempt < 2; ++attempt) {
-    const bool ex = exact || attempt == 1;
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    const bool ex = exact || attempt == 2;
+    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
     for (int a = 0; a < na; ++a) {
       const Match r = encode_p1(x.v + a * nb, q.unit, ctx, ex);
       idx[size_t(a)] = uint32_t(r.index);
@@ -906,8 +931,9 @@ uint32_t Encoder::encode_i2(const Query& q, Ctx& ctx, bool exact) {
   const int na = grid_.n_alpha, nb = grid_.n_beta, n = na * nb;
   std::vector<float> recon(static_cast<size_t>(2 * n)), st(static_cast<size_t>(4 * n)), row(static_cast<size_t>(2 * nb));
   std::vector<uint32_t> idx(static_cast<size_t>(na));
-  for (int attempt = 0; attempt < 2; ++attempt) {
-    const bool ex = exact || attempt == 1;
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    const bool ex = exact || attempt == 2;
+    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
     for (int a = 0; a < na; ++a) {
       std::copy(q.at(0, 1).v + a * nb, q.at(0, 1).v + (a + 1) * nb, row.begin());
       std::copy(q.at(0, 2).v + a * nb, q.at(0, 2).v + (a + 1) * nb, row.begin() + nb);
@@ -959,8 +985,9 @@ uint32_t Encoder::encode_i1(const float* row, float unit, Ctx& ctx, bool exact) 
   }
   std::vector<float> recon(static_cast<size_t>(2 * nb)), st(static_cast<size_t>(8 * nb));
   std::vector<uint32_t> idx(static_cast<size_t>(nb));
-  for (int attempt = 0; attempt < 2; ++attempt) {
-    const bool ex = exact || attempt == 1;
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    const bool ex = exact || attempt == 2;
+    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
     for (int b = 0; b < nb; ++b) {
       idx[size_t(b)] = encode_c(row[b], row[nb + b], unit, ex);
       recon[size_t(b)] = books_.c.at(idx[size_t(b)], 0);
