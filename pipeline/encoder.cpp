@@ -163,6 +163,7 @@ Encoder::Encoder(Codebooks& books, Dynamic dyn, const Thresholds& thresholds, co
 }
 
 void Encoder::sync() {
+  while (c_indexed_ < books_.c.rows()) index_c(uint32_t(c_indexed_));
   while (p1_store_.size() < books_.p1.rows()) cache_p1(p1_store_.size());
   while (i1_store_.size() < books_.i1.rows()) cache_i1(i1_store_.size());
   while (p2_store_.size() < books_.p2_index.rows()) cache_p2(p2_store_.size());
@@ -173,6 +174,17 @@ void Encoder::sync() {
 }
 
 void Encoder::cache_p1(uint32_t e) { p1_store_.append(books_.p1.row(e)); }
+
+namespace {
+constexpr float kCCell = 4.0f;  // grid cell of the C index, in stored chroma units
+int64_t c_cell(double v) { return int64_t(std::floor(v / kCCell)); }
+uint64_t c_key(int64_t i, int64_t j) { return (uint64_t(uint32_t(int32_t(i))) << 32) | uint32_t(int32_t(j)); }
+}  // namespace
+
+void Encoder::index_c(uint32_t e) {
+  c_grid_[c_key(c_cell(books_.c.at(e, 0)), c_cell(books_.c.at(e, 1)))].push_back(e);
+  c_indexed_ = size_t(e) + 1;
+}
 
 void Encoder::cache_i1(uint32_t e) {
   const int nb = grid_.n_beta;
@@ -1019,17 +1031,36 @@ uint32_t Encoder::encode_c(float a, float b, float unit, bool exact) {
   int64_t best = -1;
   double best_d = std::numeric_limits<double>::infinity();
   const float* c = books_.c.data().data();
-  for (size_t e = 0, n = books_.c.rows(); e < n; ++e) {
+  auto consider = [&](size_t e) {
     const double da = ga * (a - c[2 * e]), db = gb * (b - c[2 * e + 1]);
     const double d = da * da + db * db;
-    if (d < best_d) {
+    if (d < best_d || (d == best_d && int64_t(e) < best)) {
       best_d = d;
       best = int64_t(e);
     }
+  };
+  // Only an entry within sqrt(limit) (absolute units) can be returned; in stored units that is a
+  // box of half-width r per channel (with a margin for rounding). The grid visits the cells of that
+  // box, unless they are many (dark slices: tiny unit), then the linear scan is cheaper.
+  const double g = std::min(ga, gb);
+  const double r = g > 0 ? std::sqrt(limit) / g * (1 + 1e-5) + 1e-6 : std::numeric_limits<double>::infinity();
+  const size_t n = books_.c.rows();
+  const double ncells = std::isfinite(r) ? (2 * r / kCCell + 2) * (2 * r / kCCell + 2) : 1e300;
+  if (settings_.pruning && ncells <= 256 && ncells * 8 < double(n)) {
+    for (int64_t i = c_cell(a - r), i1 = c_cell(a + r); i <= i1; ++i)
+      for (int64_t j = c_cell(b - r), j1 = c_cell(b + r); j <= j1; ++j) {
+        const auto it = c_grid_.find(c_key(i, j));
+        if (it != c_grid_.end())
+          for (uint32_t e : it->second) consider(e);
+      }
+  } else {
+    for (size_t e = 0; e < n; ++e) consider(e);
   }
   if (best >= 0 && best_d <= limit) return uint32_t(best);
   const float v[2] = {a, b};
-  return books_.c.append(v);
+  const uint32_t e = books_.c.append(v);
+  index_c(e);
+  return e;
 }
 
 P6Entry Encoder::encode_frozen(const float* texel_in) const {
