@@ -141,6 +141,9 @@ CompressReport compress_material(Database& db, const MeasuredSample& sample, con
                            {"resample", resample_seconds},
                            {"schedule_total", seconds_since(t_schedule)}}},
               {"dissimilarity", {{"mean", mean_dissimilarity}, {"max", worst}}},
+              {"encoder", {{"comparisons", r.encoder.comparisons},
+                           {"pruned", r.encoder.pruned},
+                           {"fallbacks", r.encoder.fallbacks}}},
               {"codebook_sizes", sizes_json(CodebookSizes::of(db.codebooks))}};
   report("done", 0, sample.texel_count(), sample.texel_count(), 1.0);
   return out;

@@ -12,6 +12,26 @@ namespace {
 
 constexpr double kNoBound = -1e300;
 
+// A composition that misses its parent's threshold is first re-encoded with every threshold below
+// it tightened by this factor, and only then exactly: an exact M slice costs 11 new P1 rows and 121
+// new C values, a tightened one mostly reuses entries.
+constexpr double kRetryFactor = 0.5;
+
+// Scales the encoder's thresholds for the lifetime of the scope (children of a retried entry).
+class TightenedScope {
+ public:
+  TightenedScope(Thresholds& t, double f) : t_(t), saved_(t) {
+    if (f != 1.0) t_ = t_.relaxed(f);
+  }
+  ~TightenedScope() { t_ = saved_; }
+  TightenedScope(const TightenedScope&) = delete;
+  TightenedScope& operator=(const TightenedScope&) = delete;
+
+ private:
+  Thresholds& t_;
+  Thresholds saved_;
+};
+
 Thresholds read_thresholds(const ParameterDictionary& d, const std::string& prefix, double hi) {
   Thresholds t;
   t.p4 = d.number(prefix + ".p4", 0.0, hi);
@@ -143,6 +163,7 @@ Encoder::Encoder(Codebooks& books, Dynamic dyn, const Thresholds& thresholds, co
 }
 
 void Encoder::sync() {
+  while (c_indexed_ < books_.c.rows()) index_c(uint32_t(c_indexed_));
   while (p1_store_.size() < books_.p1.rows()) cache_p1(p1_store_.size());
   while (i1_store_.size() < books_.i1.rows()) cache_i1(i1_store_.size());
   while (p2_store_.size() < books_.p2_index.rows()) cache_p2(p2_store_.size());
@@ -153,6 +174,17 @@ void Encoder::sync() {
 }
 
 void Encoder::cache_p1(uint32_t e) { p1_store_.append(books_.p1.row(e)); }
+
+namespace {
+constexpr float kCCell = 4.0f;  // grid cell of the C index, in stored chroma units
+int64_t c_cell(double v) { return int64_t(std::floor(v / kCCell)); }
+uint64_t c_key(int64_t i, int64_t j) { return (uint64_t(uint32_t(int32_t(i))) << 32) | uint32_t(int32_t(j)); }
+}  // namespace
+
+void Encoder::index_c(uint32_t e) {
+  c_grid_[c_key(c_cell(books_.c.at(e, 0)), c_cell(books_.c.at(e, 1)))].push_back(e);
+  c_indexed_ = size_t(e) + 1;
+}
 
 void Encoder::cache_i1(uint32_t e) {
   const int nb = grid_.n_beta;
@@ -717,12 +749,14 @@ Encoder::Match Encoder::encode_p4(const float* texel_in, Ctx& ctx, bool exact) {
       q.views.push_back(make_view(g2_, texel.data() + size_t(c) * samples + size_t(p * n), st, st + n));
     }
   q.order_planes(n);
+  const double p4_bound = bound_for(thresholds_.p4, q.values);
   if (!exact) {
-    const Match found = search_composite(q, 4, bound_for(thresholds_.p4, q.values), ctx);
+    const Match found = search_composite(q, 4, p4_bound, ctx);
     if (found.index >= 0) return found;
   }
-  for (int attempt = 0; attempt < 2; ++attempt) {
-    const bool ex = exact || attempt == 1;
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    const bool ex = exact || attempt == 2;
+    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
     std::vector<uint32_t> idx(static_cast<size_t>(grid_.n_phi_v));
     std::vector<float> sc(idx.size());
     double bright = 0;
@@ -747,7 +781,7 @@ Encoder::Match Encoder::encode_p4(const float* texel_in, Ctx& ctx, bool exact) {
     double score;
     float s;
     evaluate_composite(q, planes.data(), int(planes.size()), kNoBound, ctx, &score, &s);
-    if (!ex && score < bound_for(thresholds_.p4, q.values)) {
+    if (!ex && score < p4_bound) {
       ++ctx.counts.fallbacks;
       continue;
     }
@@ -766,8 +800,9 @@ Encoder::Match Encoder::encode_p3(const Query& q, Ctx& ctx, bool exact) {
     if (found.index >= 0) return found;
   }
   const int nt = grid_.n_theta_v;
-  for (int attempt = 0; attempt < 2; ++attempt) {
-    const bool ex = exact || attempt == 1;
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    const bool ex = exact || attempt == 2;
+    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
     std::vector<uint32_t> idx(static_cast<size_t>(nt));
     std::vector<float> sc(static_cast<size_t>(nt));
     double bright = 0;
@@ -838,8 +873,9 @@ Encoder::Match Encoder::encode_m(const Query& q, Ctx& ctx, bool exact) {
                                      st.data() + size_t((2 * c + 1) * n));
     (c == 0 ? lq : cq).views.push_back(cv);
   }
-  for (int attempt = 0; attempt < 2; ++attempt) {
-    const bool ex = exact || attempt == 1;
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    const bool ex = exact || attempt == 2;
+    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
     const uint32_t p2 = encode_p2(lq, ctx, ex);
     const uint32_t i2 = encode_i2(cq, ctx, ex);
     const PlaneRef plane{p2, i2, 1.0f};
@@ -873,8 +909,9 @@ uint32_t Encoder::encode_p2(const Query& q, Ctx& ctx, bool exact) {
   std::vector<float> sc(static_cast<size_t>(na));
   const ChannelView& x = q.at(0, 0);
   const Affine ax = unit_affine(dyn_, 0, q.unit);
-  for (int attempt = 0; attempt < 2; ++attempt) {
-    const bool ex = exact || attempt == 1;
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    const bool ex = exact || attempt == 2;
+    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
     for (int a = 0; a < na; ++a) {
       const Match r = encode_p1(x.v + a * nb, q.unit, ctx, ex);
       idx[size_t(a)] = uint32_t(r.index);
@@ -906,8 +943,9 @@ uint32_t Encoder::encode_i2(const Query& q, Ctx& ctx, bool exact) {
   const int na = grid_.n_alpha, nb = grid_.n_beta, n = na * nb;
   std::vector<float> recon(static_cast<size_t>(2 * n)), st(static_cast<size_t>(4 * n)), row(static_cast<size_t>(2 * nb));
   std::vector<uint32_t> idx(static_cast<size_t>(na));
-  for (int attempt = 0; attempt < 2; ++attempt) {
-    const bool ex = exact || attempt == 1;
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    const bool ex = exact || attempt == 2;
+    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
     for (int a = 0; a < na; ++a) {
       std::copy(q.at(0, 1).v + a * nb, q.at(0, 1).v + (a + 1) * nb, row.begin());
       std::copy(q.at(0, 2).v + a * nb, q.at(0, 2).v + (a + 1) * nb, row.begin() + nb);
@@ -959,8 +997,9 @@ uint32_t Encoder::encode_i1(const float* row, float unit, Ctx& ctx, bool exact) 
   }
   std::vector<float> recon(static_cast<size_t>(2 * nb)), st(static_cast<size_t>(8 * nb));
   std::vector<uint32_t> idx(static_cast<size_t>(nb));
-  for (int attempt = 0; attempt < 2; ++attempt) {
-    const bool ex = exact || attempt == 1;
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    const bool ex = exact || attempt == 2;
+    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
     for (int b = 0; b < nb; ++b) {
       idx[size_t(b)] = encode_c(row[b], row[nb + b], unit, ex);
       recon[size_t(b)] = books_.c.at(idx[size_t(b)], 0);
@@ -992,17 +1031,36 @@ uint32_t Encoder::encode_c(float a, float b, float unit, bool exact) {
   int64_t best = -1;
   double best_d = std::numeric_limits<double>::infinity();
   const float* c = books_.c.data().data();
-  for (size_t e = 0, n = books_.c.rows(); e < n; ++e) {
+  auto consider = [&](size_t e) {
     const double da = ga * (a - c[2 * e]), db = gb * (b - c[2 * e + 1]);
     const double d = da * da + db * db;
-    if (d < best_d) {
+    if (d < best_d || (d == best_d && int64_t(e) < best)) {
       best_d = d;
       best = int64_t(e);
     }
+  };
+  // Only an entry within sqrt(limit) (absolute units) can be returned; in stored units that is a
+  // box of half-width r per channel (with a margin for rounding). The grid visits the cells of that
+  // box, unless they are many (dark slices: tiny unit), then the linear scan is cheaper.
+  const double g = std::min(ga, gb);
+  const double r = g > 0 ? std::sqrt(limit) / g * (1 + 1e-5) + 1e-6 : std::numeric_limits<double>::infinity();
+  const size_t n = books_.c.rows();
+  const double ncells = std::isfinite(r) ? (2 * r / kCCell + 2) * (2 * r / kCCell + 2) : 1e300;
+  if (settings_.pruning && ncells <= 256 && ncells * 8 < double(n)) {
+    for (int64_t i = c_cell(a - r), i1 = c_cell(a + r); i <= i1; ++i)
+      for (int64_t j = c_cell(b - r), j1 = c_cell(b + r); j <= j1; ++j) {
+        const auto it = c_grid_.find(c_key(i, j));
+        if (it != c_grid_.end())
+          for (uint32_t e : it->second) consider(e);
+      }
+  } else {
+    for (size_t e = 0; e < n; ++e) consider(e);
   }
   if (best >= 0 && best_d <= limit) return uint32_t(best);
   const float v[2] = {a, b};
-  return books_.c.append(v);
+  const uint32_t e = books_.c.append(v);
+  index_c(e);
+  return e;
 }
 
 P6Entry Encoder::encode_frozen(const float* texel_in) const {

@@ -130,6 +130,11 @@ class Encoder {
   std::vector<float> p2_sig_, i2_sig_;                 // row means
   std::vector<float> m_bright_, p3_bright_, p4_bright_;  // mean of (Y - offset)
   std::unordered_map<uint64_t, uint32_t> m_lookup_;    // (P2, I2) -> M
+  // C entries bucketed on a square grid of their stored (a, b) values: a C search only visits the
+  // cells within its acceptance radius (exactly the linear scan's choice; used when pruning is on).
+  std::unordered_map<uint64_t, std::vector<uint32_t>> c_grid_;
+  size_t c_indexed_ = 0;
+  void index_c(uint32_t e);
   // LAESA pivot index over P4 for the MSE metric (paper 5.1.1): angles between offset-removed
   // entries are a metric, and the least-squares residual is |x'|^2 sin^2(angle).
   static constexpr int kPivots = 8;
