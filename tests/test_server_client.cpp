@@ -43,17 +43,6 @@ double metric(const std::string& text, const std::string& name) {
   return -1;
 }
 
-int free_port() {
-  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  ::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr);
-  socklen_t len = sizeof addr;
-  ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len);
-  ::close(fd);
-  return ntohs(addr.sin_port);
-}
 
 }  // namespace
 
@@ -208,7 +197,7 @@ TEST_CASE("btfvq-server: rejects bad config, serves, and stops cleanly on SIGTER
   CHECK(run_command(server + " --listen nonsense --data " + (dir / "d").string(), &out) == 2);
   CHECK(run_command(server + " --bogus 1", &out) == 2);
 
-  const int port = free_port();
+  const int port = free_loopback_port();
   const pid_t pid = ::fork();
   REQUIRE(pid >= 0);
   if (pid == 0) {

@@ -29,17 +29,6 @@ using nlohmann::json;
 
 namespace {
 
-int free_port() {
-  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  ::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr);
-  socklen_t len = sizeof addr;
-  ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len);
-  ::close(fd);
-  return ntohs(addr.sin_port);
-}
 
 std::string slurp(const fs::path& p) {
   std::ifstream in(p, std::ios::binary);
@@ -117,7 +106,7 @@ json get_json(const std::string& url, const std::string& path) {
 
 TEST_CASE("real jobs: submit, watch, download with sha256, two versions of one database, decode") {
   const fs::path dir = scratch_dir("e2e-jobs");
-  ServerProcess server(dir / "data", free_port());
+  ServerProcess server(dir / "data", free_loopback_port());
   const std::string s = "--server " + server.url();
 
   const Run first = cli(dir, "submit " + s + " --db shop --synthetic tile:8 --name tile8");
@@ -147,14 +136,14 @@ TEST_CASE("kill -9 during a job, restart: the job completes with the same databa
   // Uninterrupted reference run.
   std::string reference;
   {
-    ServerProcess server(dir / "clean", free_port());
+    ServerProcess server(dir / "clean", free_loopback_port());
     const Run job = cli(dir, "submit --server " + server.url() + job_args);
     REQUIRE(job.status == 0);
     REQUIRE(cli(dir, "watch --server " + server.url() + " " + job.out).status == 0);
     REQUIRE(cli(dir, "download --server " + server.url() + " fabric --out " + (dir / "clean.btfdb").string()).status == 0);
     reference = slurp(dir / "clean.btfdb");
   }
-  const int port = free_port();
+  const int port = free_loopback_port();
   ServerProcess server(dir / "killed", port);
   const Run job = cli(dir, "submit --server " + server.url() + job_args);
   REQUIRE(job.status == 0);
@@ -177,7 +166,7 @@ TEST_CASE("kill -9 during a job, restart: the job completes with the same databa
 
 TEST_CASE("20 concurrent clients poll and download while a job runs: no failed request, no corrupt download") {
   const fs::path dir = scratch_dir("e2e-load");
-  ServerProcess server(dir / "data", free_port());
+  ServerProcess server(dir / "data", free_loopback_port());
   const std::string s = "--server " + server.url();
   const Run first = cli(dir, "submit " + s + " --db load --synthetic tile:8 --name a");
   REQUIRE(first.status == 0);
@@ -214,7 +203,7 @@ TEST_CASE("20 concurrent clients poll and download while a job runs: no failed r
 
 TEST_CASE("cancel a running job: watch reports it, nothing is published") {
   const fs::path dir = scratch_dir("e2e-cancel");
-  ServerProcess server(dir / "data", free_port());
+  ServerProcess server(dir / "data", free_loopback_port());
   const Run job = cli(dir, "submit --server " + server.url() + " --db c --synthetic wool:32 --name w");
   REQUIRE(job.status == 0);
   bool running = false;

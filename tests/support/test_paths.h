@@ -11,6 +11,9 @@ std::filesystem::path bin_dir();        // build/bin (btfvq, btfvq-server)
 // A fresh, empty directory unique to this test process and `name`; removed when the process ends.
 std::filesystem::path scratch_dir(const std::string& name);
 
+// A TCP port on 127.0.0.1 that was free a moment ago (for servers started by tests).
+int free_loopback_port();
+
 // Runs a shell command, returns its exit status; stdout+stderr go to `output` when given.
 int run_command(const std::string& command, std::string* output = nullptr);
 
