@@ -1,7 +1,7 @@
 // Encodes a material with the default pipeline config and reports texels/s per phase (wall and
 // CPU), code-book sizes and the dissimilarity of the result.
-//   bench_encoder synth [W] [ssim|mse|JSON]   synthetic W x W material (tests/support/synthetic_texels.h)
-//   bench_encoder alu DIR [ssim|mse|JSON]     node values of DIR = .../testdata/btfbase/alu (64 x 64, the
+//   probe_encoder synth [W] [ssim|mse|JSON]   synthetic W x W material (tests/support/synthetic_texels.h)
+//   probe_encoder alu DIR [ssim|mse|JSON]     node values of DIR = .../testdata/btfbase/alu (64 x 64, the
 //                                        original compressor's database: already through MLVQ once)
 #include <cstdio>
 #include <cstdlib>
@@ -79,7 +79,7 @@ int main(int argc, char** argv) {
   const int w = mode == "synth" && argc > 2 ? std::atoi(argv[2]) : 64;
   const char* metric = argc > 3 ? argv[3] : nullptr;
   if (mode == "alu" && argc < 3) {
-    std::fprintf(stderr, "usage: bench_encoder alu DIR [ssim|mse]\n");
+    std::fprintf(stderr, "usage: probe_encoder alu DIR [ssim|mse]\n");
     return 2;
   }
   auto cfg = ParameterDictionary::embedded_default("pipeline");
