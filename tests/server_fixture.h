@@ -47,6 +47,16 @@ inline std::string read_file(const fs::path& p) {
   return s.str();
 }
 
+// The value of one Prometheus sample line "name value" in a /metrics body.
+inline double metric(const std::string& text, const std::string& name) {
+  std::istringstream in(text);
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind(name + " ", 0) == 0) return std::stod(line.substr(name.size() + 1));
+  FAIL("no metric " << name);
+  return -1;
+}
+
 inline void write_file(const fs::path& p, const std::string& bytes) {
   std::ofstream out(p, std::ios::binary | std::ios::trunc);
   out << bytes;

@@ -34,14 +34,6 @@ Run run_cli(const fs::path& dir, const std::string& args, const std::string& env
   return r;
 }
 
-double metric(const std::string& text, const std::string& name) {
-  std::istringstream in(text);
-  std::string line;
-  while (std::getline(in, line))
-    if (line.rfind(name + " ", 0) == 0) return std::stod(line.substr(name.size() + 1));
-  FAIL("no metric " << name);
-  return -1;
-}
 
 
 }  // namespace

@@ -55,14 +55,6 @@ void send_and_vanish(int port, const std::string& bytes) {
   ::close(fd);
 }
 
-double metric(const std::string& text, const std::string& name) {
-  std::istringstream in(text);
-  std::string line;
-  while (std::getline(in, line))
-    if (line.rfind(name + " ", 0) == 0) return std::stod(line.substr(name.size() + 1));
-  FAIL("no metric " << name);
-  return -1;
-}
 
 }  // namespace
 
