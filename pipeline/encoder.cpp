@@ -156,6 +156,8 @@ Encoder::Encoder(Codebooks& books, Dynamic dyn, const Thresholds& thresholds, co
   g1_ = WindowGeometry(1, grid_.n_beta, settings.window_radius);
   p1_store_ = SliceStore(1, &g1_);
   i1_store_ = SliceStore(2, &g1_);
+  p1_index_ = ProxyIndex(grid_.n_beta, 0.02f);
+  i1_index_ = ProxyIndex(2 * grid_.n_beta, 2.0f);
   p2_store_ = SliceStore(1, &g2_);
   i2_store_ = SliceStore(2, &g2_);
   Database{books_, {}}.validate();
@@ -173,7 +175,26 @@ void Encoder::sync() {
   while (p4_bright_.size() < books_.p4_index.rows()) cache_p4(uint32_t(p4_bright_.size()));
 }
 
-void Encoder::cache_p1(uint32_t e) { p1_store_.append(books_.p1.row(e)); }
+namespace {
+// Leaders whose lists a 1D search scans (ProxyIndex::nearest).
+constexpr int kProbes = 8;
+
+// The row as a unit vector: P1 rows are matched after their best scale, so only the shape counts.
+void unit_shape(const float* row, int n, float* out) {
+  double s = 0;
+  for (int i = 0; i < n; ++i) s += double(row[i]) * row[i];
+  const float inv = s > 0 ? float(1.0 / std::sqrt(s)) : 0.0f;
+  for (int i = 0; i < n; ++i) out[i] = row[i] * inv;
+}
+}  // namespace
+
+void Encoder::cache_p1(uint32_t e) {
+  p1_store_.append(books_.p1.row(e));
+  float shape[256];
+  if (grid_.n_beta > 256) throw InputError("encoder: n_beta above 256 is not supported");
+  unit_shape(books_.p1.row(e), grid_.n_beta, shape);
+  p1_index_.insert(shape);
+}
 
 namespace {
 constexpr float kCCell = 4.0f;  // grid cell of the C index, in stored chroma units
@@ -195,6 +216,7 @@ void Encoder::cache_i1(uint32_t e) {
     v[size_t(nb + b)] = books_.c.at(c, 1);
   }
   i1_store_.append(v.data());
+  i1_index_.insert(v.data());
 }
 
 void Encoder::cache_p2(uint32_t e) {
@@ -619,8 +641,14 @@ Encoder::Match Encoder::search_p1(const float* row, float unit, double threshold
   const ChannelView x = make_view(g1_, row, pm, pv);
   const Affine ax = unit_affine(dyn_, 0, unit);
   const float o = channel_offset(dyn_, 0);
-  ctx.order.resize(n);
-  for (uint32_t e = 0; e < n; ++e) ctx.order[e] = e;
+  if (indexed_1d()) {
+    float shape[256];
+    unit_shape(row, nb, shape);
+    p1_index_.nearest(shape, settings_.candidate_limit, kProbes, ctx.order);
+  } else {
+    ctx.order.resize(n);
+    for (uint32_t e = 0; e < n; ++e) ctx.order[e] = e;
+  }
   // P1 rows are densities: the P2 scale multiplies Y itself (offset included), so the best scale
   // is the raw least-squares one.
   // With r = 0 (fewer than 50 samples per row) the score is the minimum: stop at the first value
@@ -657,8 +685,12 @@ Encoder::Match Encoder::search_i1(const float* row, float unit, double threshold
   const ChannelView xa = make_view(g1_, row, st.data(), st.data() + nb);
   const ChannelView xb = make_view(g1_, row + nb, st.data() + 2 * nb, st.data() + 3 * nb);
   const Affine a1 = unit_affine(dyn_, 1, unit), a2 = unit_affine(dyn_, 2, unit);
-  ctx.order.resize(n);
-  for (uint32_t e = 0; e < n; ++e) ctx.order[e] = e;
+  if (indexed_1d()) {
+    i1_index_.nearest(row, settings_.candidate_limit, kProbes, ctx.order);
+  } else {
+    ctx.order.resize(n);
+    for (uint32_t e = 0; e < n; ++e) ctx.order[e] = e;
+  }
   auto eval = [&](uint32_t e, double bound, double* sc, float* s) {
     ctx.acc.reset(settings_.metric, size_t(2 * nb), settings_.outlier_fraction, bound);
     if (!accumulate_channel(g1_, settings_.metric, xa, a1, i1_store_.view(e, 0), a1, ctx.k.c1[1], ctx.k.c2[1],

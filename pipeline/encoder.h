@@ -19,6 +19,7 @@
 
 #include "pipeline/codebook.h"
 #include "pipeline/config.h"
+#include "pipeline/proxy_index.h"
 #include "pipeline/similarity.h"
 
 namespace btfvq {
@@ -126,6 +127,10 @@ class Encoder {
   AngularGrid grid_;
   WindowGeometry g2_, g1_;
   SliceStore p1_store_, i1_store_, p2_store_, i2_store_;
+  // Candidate order of the 1D code-books: P1 by the angle of the row shapes (unit vectors), I1 by
+  // the Euclidean distance of the stored (a, b) rows.
+  ProxyIndex p1_index_, i1_index_;
+  bool indexed_1d() const { return settings_.pruning && settings_.candidate_limit > 0; }
   std::vector<float> m_sig_, p3_sig_, p4_sig_;         // proxy signatures (offset-removed means)
   std::vector<float> p2_sig_, i2_sig_;                 // row means
   std::vector<float> m_bright_, p3_bright_, p4_bright_;  // mean of (Y - offset)

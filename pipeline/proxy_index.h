@@ -1,0 +1,45 @@
+#pragma once
+// Which code-book entries to compare first (paper Sec. 4.4: "the search is the bottleneck").
+//
+// The exact comparison of a slice with a code-vector is an SSIM percentile; it is not a metric, so
+// it cannot be indexed directly. The 1D code-books (P1: shapes of beta rows, I1: chroma rows) grow to
+// tens of thousands of entries, and a linear scan of them dominates phases 1 and 2. This index keeps
+// a cheap Euclidean proxy of every entry in an inverted file: entries are grouped around "leaders"
+// (a new vector farther than `radius` from every leader becomes one, the others join their nearest
+// leader's list), and a query scans only the lists of its nearest leaders. When the leaders become
+// too many for the entries (the radius was too small for the data), the radius doubles and the
+// lists are rebuilt: growth stays amortized linear. Everything is deterministic.
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+namespace btfvq {
+
+class ProxyIndex {
+ public:
+  ProxyIndex() = default;
+  ProxyIndex(int dim, float radius);
+
+  int dim() const { return dim_; }
+  uint32_t size() const { return uint32_t(vectors_.size() / size_t(dim_ > 0 ? dim_ : 1)); }
+  size_t leaders() const { return leaders_.size(); }
+
+  // Adds a vector; its id is the previous size().
+  void insert(const float* v);
+  // Up to k ids, nearest first (ties to the lower id), among the lists of the `probes` leaders
+  // nearest to q. An approximate search: an entry in a farther list is never returned.
+  void nearest(const float* q, int k, int probes, std::vector<uint32_t>& out) const;
+
+ private:
+  float distance2(const float* a, const float* b) const;
+  void assign(uint32_t id);
+  void rebuild();
+
+  int dim_ = 0;
+  float radius_ = 0;
+  std::vector<float> vectors_;                // size() x dim
+  std::vector<uint32_t> leaders_;             // ids of the leaders
+  std::vector<std::vector<uint32_t>> lists_;  // per leader: ids of its members (itself first)
+};
+
+}  // namespace btfvq

@@ -1,0 +1,84 @@
+#include <doctest/doctest.h>
+
+#include <algorithm>
+#include <limits>
+#include <random>
+
+#include "pipeline/error.h"
+#include "pipeline/proxy_index.h"
+
+using namespace btfvq;
+
+namespace {
+
+std::vector<float> random_vectors(size_t n, int dim, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<float> centre(0.0f, 5.0f), spread(0.0f, 0.3f);
+  std::vector<float> v;
+  // Clusters, as code-book entries are: 20 centres with small spread.
+  std::vector<float> centres(20 * size_t(dim));
+  for (auto& c : centres) c = centre(rng);
+  for (size_t i = 0; i < n; ++i)
+    for (int d = 0; d < dim; ++d) v.push_back(centres[(i % 20) * size_t(dim) + size_t(d)] + spread(rng));
+  return v;
+}
+
+std::vector<uint32_t> brute_force(const std::vector<float>& v, int dim, const float* q, int k) {
+  const size_t n = v.size() / size_t(dim);
+  std::vector<std::pair<float, uint32_t>> d;
+  for (size_t i = 0; i < n; ++i) {
+    float s = 0;
+    for (int j = 0; j < dim; ++j) s += (v[i * size_t(dim) + size_t(j)] - q[j]) * (v[i * size_t(dim) + size_t(j)] - q[j]);
+    d.push_back({s, uint32_t(i)});
+  }
+  std::sort(d.begin(), d.end());
+  std::vector<uint32_t> out;
+  for (int i = 0; i < k && size_t(i) < n; ++i) out.push_back(d[size_t(i)].second);
+  return out;
+}
+
+}  // namespace
+
+TEST_CASE("probing every list gives the exact nearest neighbours, nearest first") {
+  const int dim = 11;
+  const auto v = random_vectors(3000, dim, 7);
+  ProxyIndex index(dim, 0.01f);  // far too small: the index must widen its radius itself
+  for (size_t i = 0; i < v.size() / dim; ++i) index.insert(v.data() + i * dim);
+  CHECK(index.size() == 3000);
+  CHECK(index.leaders() <= 64 + 2 * 55);
+  const auto q = random_vectors(10, dim, 99);
+  std::vector<uint32_t> got;
+  for (int i = 0; i < 10; ++i) {
+    index.nearest(q.data() + i * dim, 16, 1 << 20, got);
+    CHECK(got == brute_force(v, dim, q.data() + i * dim, 16));
+  }
+}
+
+TEST_CASE("few probes still find the neighbours of a query inside a cluster") {
+  const int dim = 11;
+  const auto v = random_vectors(2000, dim, 3);
+  ProxyIndex index(dim, 0.5f);
+  for (size_t i = 0; i < v.size() / dim; ++i) index.insert(v.data() + i * dim);
+  std::vector<uint32_t> got;
+  size_t found = 0;
+  for (size_t i = 0; i < 50; ++i) {
+    const float* q = v.data() + (i * 37 % 2000) * dim;
+    index.nearest(q, 8, 8, got);
+    REQUIRE(!got.empty());
+    const auto truth = brute_force(v, dim, q, 8);
+    CHECK(got.front() == truth.front());  // the query itself is stored: distance 0
+    for (uint32_t id : got) found += std::count(truth.begin(), truth.end(), id);
+  }
+  CHECK(found >= 50 * 8 * 9 / 10);
+}
+
+TEST_CASE("an empty index returns nothing; a bad dimension or radius is an error") {
+  ProxyIndex index(4, 1.0f);
+  std::vector<uint32_t> got{1, 2};
+  const float q[4] = {0, 0, 0, 0};
+  index.nearest(q, 5, 3, got);
+  CHECK(got.empty());
+  CHECK_THROWS_AS(ProxyIndex(0, 1.0f), InputError);
+  CHECK_THROWS_AS(ProxyIndex(3, 0.0f), InputError);
+  CHECK_THROWS_AS(ProxyIndex(3, std::numeric_limits<float>::quiet_NaN()), InputError);
+}
