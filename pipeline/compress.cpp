@@ -141,6 +141,13 @@ CompressReport compress_material(Database& db, const MeasuredSample& sample, con
                            {"resample", resample_seconds},
                            {"schedule_total", seconds_since(t_schedule)}}},
               {"dissimilarity", {{"mean", mean_dissimilarity}, {"max", worst}}},
+              {"search", {{"path", r.search == SearchPath::Pruned          ? "pruned"
+                                   : r.search == SearchPath::BatchedOpenCL ? "batched-opencl"
+                                                                           : "batched-reference"},
+                          {"scored", r.search_stats.scored},
+                          {"settled", r.search_stats.settled},
+                          {"batch_seconds", r.search_stats.batch_seconds},
+                          {"settle_seconds", r.search_stats.settle_seconds}}},
               {"encoder", {{"comparisons", r.encoder.comparisons},
                            {"pruned", r.encoder.pruned},
                            {"fallbacks", r.encoder.fallbacks}}},

@@ -493,10 +493,10 @@ static void run_search(const std::vector<uint32_t>& order, bool pruning, double 
   if (best_index >= 0 && best_score < threshold_score) best_index = -1;
 }
 
-Encoder::Match Encoder::search_composite(const Query& q, int level, double threshold_score, Ctx& ctx) const {
-  Match best;
+void Encoder::order_composite(const Query& q, int level, Ctx& ctx) const {
+  ctx.order.clear();
   const uint32_t n = uint32_t(level == 4 ? books_.p4_index.rows() : level == 3 ? books_.p3_index.rows() : books_.m.rows());
-  if (n == 0) return best;
+  if (n == 0) return;
   // Query signature: as the candidates' (level 4/3: per plane channel means; M: per channel row means).
   std::vector<float> qsig;
   const int na = grid_.n_alpha, nb = grid_.n_beta;
@@ -514,6 +514,18 @@ Encoder::Match Encoder::search_composite(const Query& q, int level, double thres
       n, settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
       [&](uint32_t e) { return scaled_distance(qsig.data(), sig.data() + size_t(e) * size_t(ns), ns); }, ctx.proxy,
       ctx.order, ctx.tried);
+}
+
+Encoder::Match Encoder::search_composite(const Query& q, int level, double threshold_score, Ctx& ctx) const {
+  order_composite(q, level, ctx);
+  const std::vector<uint32_t> order = ctx.order;
+  return search_composite_in(q, level, order, threshold_score, ctx);
+}
+
+Encoder::Match Encoder::search_composite_in(const Query& q, int level, const std::vector<uint32_t>& order,
+                                            double threshold_score, Ctx& ctx) const {
+  Match best;
+  if (order.empty()) return best;
   std::vector<PlaneRef> planes;
   // LAESA (MSE only): angles of the query to the pivots bound every candidate's residual from below.
   const bool laesa = level == 4 && settings_.metric == Metric::MSE && settings_.pruning && !pivots_.empty();
@@ -564,7 +576,6 @@ Encoder::Match Encoder::search_composite(const Query& q, int level, double thres
     else planes.assign(1, PlaneRef{books_.m.at(e, 0), books_.m.at(e, 1), 1.0f});
     return evaluate_composite(q, planes.data(), int(planes.size()), bound, ctx, sc, s);
   };
-  const std::vector<uint32_t> order = ctx.order;
   run_search(order, settings_.pruning, threshold_score, eval, ctx.counts, best.index, best.score, best.scale);
   return best;
 }
@@ -1095,13 +1106,15 @@ uint32_t Encoder::encode_c(float a, float b, float unit, bool exact) {
   return e;
 }
 
-P6Entry Encoder::encode_frozen(const float* texel_in) const {
+void Encoder::check_frozen() const {
   if (books_.p4_index.rows() == 0) throw InputError("encoder: P4 is empty; grow the code-books before freezing them");
   if (p4_bright_.size() != books_.p4_index.rows() || p2_store_.size() != books_.p2_index.rows())
     throw InputError("encoder: the code-books grew outside this encoder; encode_growing() syncs them");
+}
+
+// The whole texel as a level-4 query (owning its window statistics) and its SSIM constants.
+Encoder::Query Encoder::texel_query(const std::vector<float>& texel, Ctx& ctx) const {
   const size_t samples = grid_.samples();
-  const std::vector<float> texel = clamped_texel(texel_in, samples, dyn_);
-  Ctx ctx;
   ctx.k = SsimConstants::make(settings_, dyn_, luminance_range(texel.data(), samples));
   ctx.scratch.resize(size_t(3 * g2_.size()));
   const int nplanes = grid_.n_phi_v * grid_.n_theta_v, n = g2_.size();
@@ -1115,12 +1128,65 @@ P6Entry Encoder::encode_frozen(const float* texel_in) const {
       q.views.push_back(make_view(g2_, texel.data() + size_t(c) * samples + size_t(p * n), st, st + n));
     }
   q.order_planes(n);
-  const Match best = search_composite(q, 4, kNoBound, ctx);
+  return q;
+}
+
+P6Entry Encoder::frozen_entry(const Query& q, const Match& best) const {
   P6Entry r;
   r.index = uint32_t(best.index);
   r.scale = best.scale;
   r.dissimilarity = score_to_dissimilarity(settings_.metric, best.score, q.values);
   return r;
+}
+
+P6Entry Encoder::encode_frozen(const float* texel_in) const {
+  check_frozen();
+  const std::vector<float> texel = clamped_texel(texel_in, grid_.samples(), dyn_);
+  Ctx ctx;
+  const Query q = texel_query(texel, ctx);
+  return frozen_entry(q, search_composite(q, 4, kNoBound, ctx));
+}
+
+std::vector<uint32_t> Encoder::frozen_candidates(const float* texel_in) const {
+  check_frozen();
+  const std::vector<float> texel = clamped_texel(texel_in, grid_.samples(), dyn_);
+  Ctx ctx;
+  const Query q = texel_query(texel, ctx);
+  order_composite(q, 4, ctx);
+  return ctx.order;
+}
+
+P6Entry Encoder::encode_frozen_among(const float* texel_in, const std::vector<uint32_t>& order, double floor) const {
+  check_frozen();
+  const std::vector<float> texel = clamped_texel(texel_in, grid_.samples(), dyn_);
+  Ctx ctx;
+  const Query q = texel_query(texel, ctx);
+  const Match best = search_composite_in(q, 4, order, floor, ctx);
+  if (best.index < 0) throw InputError("encoder: no candidate reaches the given floor score");
+  return frozen_entry(q, best);
+}
+
+FrozenQuery Encoder::frozen_query(const float* texel_in) const {
+  const std::vector<float> texel = clamped_texel(texel_in, grid_.samples(), dyn_);
+  FrozenQuery f;
+  f.texel = texel;
+  const SsimConstants k = SsimConstants::make(settings_, dyn_, luminance_range(texel.data(), grid_.samples()));
+  for (int c = 0; c < 3; ++c) {
+    f.c1[c] = k.c1[c];
+    f.c2[c] = k.c2[c];
+  }
+  return f;
+}
+
+void Encoder::p4_planes(uint32_t e, std::vector<uint32_t>& p2, std::vector<uint32_t>& i2,
+                        std::vector<float>& factor) const {
+  std::vector<PlaneRef> planes;
+  planes_of_p4(e, planes);
+  for (const PlaneRef& r : planes) {
+    p2.push_back(r.p2);
+    i2.push_back(r.i2);
+    factor.push_back(r.factor);
+  }
 }
 
 double Encoder::texel_dissimilarity(const float* texel, uint32_t p4, float scale) const {

@@ -53,6 +53,13 @@ struct EncoderStats {
   uint64_t laesa_skipped = 0;  // P4 candidates excluded by the MSE pivot bound (of `pruned`)
 };
 
+// What the batched phase-3 search needs of one texel: its values with luminance clamped at black
+// (3 x grid.samples(), layout [channel][AngularGrid::index]) and its SSIM constants per channel.
+struct FrozenQuery {
+  std::vector<float> texel;
+  float c1[3] = {0, 0, 0}, c2[3] = {0, 0, 0};
+};
+
 // Brightness to which new M, P3 and P4 entries are normalized: mean of (Y - 16) for LDR, of Y for HDR.
 float normalized_brightness(Dynamic dyn);
 
@@ -64,6 +71,7 @@ class Encoder {
   const Thresholds& thresholds() const { return thresholds_; }
   const SimilaritySettings& settings() const { return settings_; }
   const Codebooks& codebooks() const { return books_; }
+  Dynamic dynamic() const { return dyn_; }
   const EncoderStats& stats() const { return stats_; }
 
   // Phases 1 and 2: encodes texel (3 x grid.samples() coding-space floats), growing the code-books.
@@ -71,6 +79,21 @@ class Encoder {
   // Phase 3: the best P4 entry and its scale; no insertion. Throws InputError if P4 is empty.
   // Thread-safe (const) as long as nobody grows the code-books at the same time.
   P6Entry encode_frozen(const float* texel) const;
+
+  // The pieces of encode_frozen() for the batched search (pipeline/frozen_search.h):
+  // the candidates it evaluates, in order (the best by proxy; every entry when candidate_limit is 0);
+  std::vector<uint32_t> frozen_candidates(const float* texel) const;
+  // the exact search among `order` that only accepts scores >= floor (throws InputError if none
+  // does): equal to encode_frozen() whenever the best candidate's score is >= floor and in `order`;
+  P6Entry encode_frozen_among(const float* texel, const std::vector<uint32_t>& order, double floor) const;
+  // the texel as the comparison sees it;
+  FrozenQuery frozen_query(const float* texel) const;
+  // the M planes of a P4 entry (n_phi_v x n_theta_v, phi_v-major): P2 and I2 entries and the
+  // product of the P4 and P3 scales;
+  void p4_planes(uint32_t p4, std::vector<uint32_t>& p2, std::vector<uint32_t>& i2, std::vector<float>& factor) const;
+  // and the cached P2 (luminance) and I2 (chroma) planes with their window statistics.
+  const SliceStore& luminance_planes() const { return p2_store_; }
+  const SliceStore& chroma_planes() const { return i2_store_; }
 
   // Dissimilarity of the texel and its reconstruction from (p4, scale), per the similarity settings.
   double texel_dissimilarity(const float* texel, uint32_t p4, float scale) const;
@@ -106,6 +129,13 @@ class Encoder {
   bool evaluate_composite(const Query& q, const PlaneRef* planes, int np, double bound, Ctx& ctx, double* score,
                           float* scale) const;
   Match search_composite(const Query& q, int level, double bound, Ctx& ctx) const;
+  // search_composite in two steps: the candidate order (into ctx.order), then the search.
+  void order_composite(const Query& q, int level, Ctx& ctx) const;
+  Match search_composite_in(const Query& q, int level, const std::vector<uint32_t>& order, double bound,
+                            Ctx& ctx) const;
+  void check_frozen() const;
+  Query texel_query(const std::vector<float>& texel, Ctx& ctx) const;
+  P6Entry frozen_entry(const Query& q, const Match& best) const;
   Match search_p2(const Query& q, double bound, Ctx& ctx) const;
   Match search_i2(const Query& q, double bound, Ctx& ctx) const;
   Match search_p1(const float* row, float unit, double bound, Ctx& ctx) const;

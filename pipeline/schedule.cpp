@@ -3,10 +3,10 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <exception>
-#include <thread>
+#include <memory>
 
 #include "pipeline/error.h"
+#include "pipeline/opencl_runtime.h"
 
 namespace btfvq {
 
@@ -19,7 +19,17 @@ ScheduleSettings ScheduleSettings::from(const ParameterDictionary& d) {
   s.relax_factor = d.number("schedule.relax_factor", 1.0, 100.0);
   s.tile_texels = d.integer("schedule.tile_texels", 1, 1 << 16);
   s.threads = d.integer("schedule.threads", 1, 256);
+  s.search = d.string("schedule.search");
+  if (s.search != "auto" && s.search != "pruned" && s.search != "batched")
+    throw ConfigError(d.origin() + ": 'schedule.search' = '" + s.search + "' must be \"auto\", \"pruned\" or \"batched\"");
   return s;
+}
+
+SearchPath ScheduleSettings::search_path() const {
+  if (search == "pruned") return SearchPath::Pruned;
+  if (search == "batched")
+    return ComputeDevice::get().uses_opencl() ? SearchPath::BatchedOpenCL : SearchPath::BatchedReference;
+  return FrozenSearch::preferred();
 }
 
 CodebookSizes CodebookSizes::of(const Codebooks& k) {
@@ -88,6 +98,7 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
   Encoder encoder(books, dyn, thresholds, similarity);
   const size_t tile = size_t(schedule.tile_texels);
   std::vector<float> buffer(std::min(tile, total) * 3 * samples);
+  std::unique_ptr<FrozenSearch> frozen;  // built when phase 3 starts: the code-books are final then
 
   for (int phase = 1; phase <= 3; ++phase) {
     const auto t0 = std::chrono::steady_clock::now();
@@ -106,22 +117,10 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
       if (phase < 3) {
         for (size_t i = 0; i < n; ++i) store(i, encoder.encode_growing(buffer.data() + i * 3 * samples));
       } else {
-        // The frozen encoder is const: texels of a tile are split over the workers.
-        const int workers = std::max(1, std::min<int>(schedule.threads, int(n)));
-        std::vector<std::thread> pool;
-        std::vector<std::exception_ptr> errors(static_cast<size_t>(workers));
-        for (int w = 0; w < workers; ++w)
-          pool.emplace_back([&, w] {
-            try {
-              for (size_t i = size_t(w); i < n; i += size_t(workers))
-                store(i, encoder.encode_frozen(buffer.data() + i * 3 * samples));
-            } catch (...) {
-              errors[size_t(w)] = std::current_exception();
-            }
-          });
-        for (auto& t : pool) t.join();
-        for (auto& e : errors)
-          if (e) std::rethrow_exception(e);
+        if (!frozen) frozen = std::make_unique<FrozenSearch>(encoder, schedule.search_path(), schedule.threads);
+        std::vector<P6Entry> entries(n);
+        frozen->encode(buffer.data(), n, entries.data());
+        for (size_t i = 0; i < n; ++i) store(i, entries[i]);
       }
       if (progress) progress({phase, at + n - begin, end - begin, CodebookSizes::of(books)});
     }
@@ -130,6 +129,10 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
     result.report.seconds[phase - 1] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   }
   result.report.encoder = encoder.stats();
+  if (frozen) {
+    result.report.search = frozen->path();
+    result.report.search_stats = frozen->stats();
+  }
   return result;
 }
 

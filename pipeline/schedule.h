@@ -8,11 +8,13 @@
 #include <cstddef>
 #include <cstdint>
 #include <functional>
+#include <string>
 #include <vector>
 
 #include "pipeline/codebook.h"
 #include "pipeline/config.h"
 #include "pipeline/encoder.h"
+#include "pipeline/frozen_search.h"
 
 namespace btfvq {
 
@@ -22,6 +24,10 @@ struct ScheduleSettings {
   double relax_factor = 2.5;
   int tile_texels = 256;
   int threads = 2;  // phase 3 workers
+  // Phase 3 search: "auto" (the fastest measured: pruned for now), "pruned", "batched"
+  // (on the compute device's path: OpenCL or its C++ reference). All give the same entries.
+  std::string search = "auto";
+  SearchPath search_path() const;
 
   // Reads the "schedule" section.
   static ScheduleSettings from(const ParameterDictionary& d);
@@ -46,6 +52,8 @@ struct ScheduleReport {
   CodebookSizes sizes[3];   // after each phase
   double seconds[3] = {0, 0, 0};
   EncoderStats encoder;     // phases 1 and 2
+  SearchPath search = SearchPath::Pruned;  // phase 3
+  SearchStats search_stats;
 };
 
 struct ScheduleResult {

@@ -91,6 +91,10 @@ class SliceStore {
   void append(const float* values /* channels x plane size */);
   ChannelView view(uint32_t entry, int channel) const;
   const float* values(uint32_t entry) const { return data_.data() + size_t(entry) * stride_; }
+  // Every entry's block, `stride()` floats each: values, window means, window variances, each
+  // channels x plane size (for uploading the store to a compute device).
+  const std::vector<float>& blocks() const { return data_; }
+  size_t stride() const { return stride_; }
 
  private:
   int channels_ = 0;

@@ -1,0 +1,100 @@
+// The batched phase-3 search (pipeline/frozen_search.h, kernels/search.cl): the kernel agrees with
+// its C++ reference, its brackets hold the exact scores, and every path picks the same entries.
+#include <doctest/doctest.h>
+
+#include "pipeline/frozen_search.h"
+#include "pipeline/opencl_runtime.h"
+#include "support/synthetic_texels.h"
+
+using namespace btfvq;
+using btfvq::test::SyntheticMaterial;
+
+namespace {
+
+struct Grown {
+  SyntheticMaterial mat{12, 12};
+  Codebooks books{mat.grid};
+  std::unique_ptr<Encoder> encoder;
+  explicit Grown(Dynamic dyn = Dynamic::LDR, uint32_t texels = 40) : mat(12, 12, dyn), books(mat.grid) {
+    encoder = std::make_unique<Encoder>(books, dyn, Thresholds{}, SimilaritySettings{});
+    for (uint32_t id = 0; id < texels; ++id) encoder->encode_growing(mat.texel(id * 7 % 144).data());
+  }
+};
+
+}  // namespace
+
+TEST_CASE("the OpenCL kernel's bins equal its C++ reference's and bracket the exact scores") {
+  REQUIRE(ComputeDevice::get().uses_opencl());
+  Grown g;
+  REQUIRE(g.books.p4_index.rows() > 4);
+  FrozenSearch gpu(*g.encoder, SearchPath::BatchedOpenCL, 2), cpu(*g.encoder, SearchPath::BatchedReference, 2);
+  std::vector<FrozenQuery> queries;
+  std::vector<uint32_t> candidates;
+  const size_t slots = g.books.p4_index.rows();
+  for (uint32_t t = 0; t < 16; ++t) {
+    const auto texel = g.mat.texel(100 + t);
+    queries.push_back(g.encoder->frozen_query(texel.data()));
+    for (uint32_t e = 0; e < slots; ++e) candidates.push_back(e);
+  }
+  const std::vector<int> a = gpu.bins(queries, candidates, slots), b = cpu.bins(queries, candidates, slots);
+  REQUIRE(a.size() == b.size());
+  size_t equal = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    CHECK(std::abs(a[i] - b[i]) <= 1);  // a value on a bin edge may round either way
+    equal += a[i] == b[i];
+  }
+  CHECK(equal >= a.size() * 95 / 100);
+  // The exact score of each candidate (the pruned search restricted to it) lies in its bracket.
+  size_t informative = 0;
+  for (uint32_t t = 0; t < 16; ++t) {
+    const auto texel = g.mat.texel(100 + t);
+    for (uint32_t e = 0; e < slots; ++e) {
+      const P6Entry exact = g.encoder->encode_frozen_among(texel.data(), {e}, -1e300);
+      double lo, hi;
+      FrozenSearch::bracket(a[t * slots + e], &lo, &hi);
+      const double score = 1.0 - exact.dissimilarity;
+      CHECK(score >= lo);
+      CHECK(score <= hi);
+      informative += a[t * slots + e] > 0;
+    }
+  }
+  CHECK(informative > slots * 16 / 2);  // most scores are positive: the brackets prune
+}
+
+TEST_CASE("batched (OpenCL and reference) and pruned phase 3 choose identical entries and scales") {
+  REQUIRE(ComputeDevice::get().uses_opencl());
+  for (Dynamic dyn : {Dynamic::LDR, Dynamic::HDR}) {
+    Grown g(dyn, dyn == Dynamic::LDR ? 40 : 6);  // HDR code-books grow slowly: a few texels suffice
+    const size_t values = 3 * g.mat.grid.samples();
+    std::vector<float> texels;
+    for (uint32_t t = 0; t < 24; ++t) {
+      const auto x = g.mat.texel(t * 5 % 144);
+      texels.insert(texels.end(), x.begin(), x.end());
+    }
+    std::vector<P6Entry> out[3];
+    const SearchPath paths[3] = {SearchPath::Pruned, SearchPath::BatchedOpenCL, SearchPath::BatchedReference};
+    for (int p = 0; p < 3; ++p) {
+      FrozenSearch s(*g.encoder, paths[p], 2);
+      out[p].resize(24);
+      s.encode(texels.data(), 24, out[p].data());
+      if (p > 0) CHECK(s.stats().settled < s.stats().scored);  // the brackets spare exact comparisons
+    }
+    for (size_t i = 0; i < 24; ++i) {
+      CHECK(out[1][i].index == out[0][i].index);
+      CHECK(out[1][i].scale == out[0][i].scale);
+      CHECK(out[2][i].index == out[0][i].index);
+      CHECK(out[2][i].scale == out[0][i].scale);
+      CHECK(out[0][i].index == g.encoder->encode_frozen(texels.data() + i * values).index);
+    }
+  }
+}
+
+TEST_CASE("bad batches are errors") {
+  Grown g;
+  FrozenSearch cpu(*g.encoder, SearchPath::BatchedReference, 1);
+  std::vector<FrozenQuery> queries{g.encoder->frozen_query(g.mat.texel(3).data())};
+  CHECK_THROWS_AS(cpu.bins(queries, {0, 1}, 1), InputError);
+  CHECK_THROWS_AS(cpu.bins(queries, {100000}, 1), InputError);
+  FrozenSearch pruned(*g.encoder, SearchPath::Pruned, 1);
+  CHECK_THROWS_AS(pruned.bins(queries, {0}, 1), InputError);
+}
