@@ -39,7 +39,7 @@ floatv pick(intv m, floatv a, floatv b) { return select(b, a, m); }
 intv pick_i(intv m, intv a, intv b) { return select(b, a, m); }
 intv clamp_i(intv x, int lo, int hi) { return min(max(x, (intv)lo), (intv)hi); }
 
-// sin and cos of an angle in degrees: reduction to [-45, 45] around the nearest multiple of 90,
+// sin and cos of an angle in degrees (|d| <= 360): reduction to [-45, 45] around the nearest multiple of 90,
 // then the Cephes polynomials; quadrant k gives (s, c), (c, -s), (-s, -c), (-c, s).
 void sincos_deg(floatv d, floatv* sin_d, floatv* cos_d) {
   const floatv k = floor(d / 90.0f + 0.5f);
@@ -69,6 +69,9 @@ floatv atan_deg(floatv y, floatv x) {
 }
 
 floatv wrap360(floatv a) { return a - 360.0f * floor(a / 360.0f); }
+// Into [-180, 180): a small angle stays exact (wrapping -0.01 to 359.99 would keep only three
+// significant digits of it, and the light azimuth near the pole needs them all).
+floatv wrap180(floatv a) { return a - 360.0f * floor(a / 360.0f + 0.5f); }
 
 // Position of x in a grid of nodes 0, step, 2 step, ... clamped to cell [0, last_cell]: the cell and
 // the weight of its second node.
@@ -119,8 +122,9 @@ __kernel void decode_batch(__global const float* p1, __global const float* c, __
   intv valid = (ti_in <= 90.0f) & (tv_in <= 90.0f) & (fabs(pi_in) <= MAXFLOAT) & (fabs(pv_in) <= MAXFLOAT) & (code >= 0);
   // An undecodable query continues with harmless inputs (no NaN reaches an index computation).
   const floatv zero = 0.0f;
-  const floatv theta_i = pick(valid, ti_in, zero), phi_i = pick(valid, wrap360(pi_in), zero);
-  const floatv theta_v = pick(valid, tv_in, zero), phi_v = pick(valid, wrap360(pv_in), zero);
+  const floatv theta_i = pick(valid, ti_in, zero), theta_v = pick(valid, tv_in, zero);
+  const floatv phi_v = pick(valid, wrap360(pv_in), zero);
+  const floatv light_azimuth = pick(valid, wrap180(pi_in - pv_in - 90.0f), zero);  // phi' of FORMAT.md step 1
   const intv texel = pick_i(valid, code >> 1, (intv)0), hdr = code & 1;
   const intv p6 = GATHERI(p6_index, texel);
   valid &= p6 >= 0;
@@ -129,7 +133,7 @@ __kernel void decode_batch(__global const float* p1, __global const float* c, __
   // Onion angles of the light for this view azimuth (see the top of the file).
   floatv sin_t, cos_t, sin_p, cos_p;
   sincos_deg(theta_i, &sin_t, &cos_t);
-  sincos_deg(wrap360(phi_i - phi_v - 90.0f), &sin_p, &cos_p);
+  sincos_deg(light_azimuth, &sin_p, &cos_p);
   const floatv sb = clamp(cos_p * sin_t, -1.0f, 1.0f), ly = sin_p * sin_t;
   const floatv beta = atan_deg(sb, sqrt(cos_t * cos_t + ly * ly));
   const floatv alpha = atan_deg(ly, cos_t);
