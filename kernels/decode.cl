@@ -102,6 +102,8 @@ void add_rgb(floatv l, floatv a, floatv b, intv hdr, floatv w, floatv* r, floatv
   *bl += w * pick(use_hdr, hb, lb);
 }
 
+// P2, P3, P4 and P6 arrive as (index, scale) pairs, one look-up touching one cache line: each is
+// bound twice, as X_index (ints) and as X_scale (floats), entry i at 2 i and 2 i + 1.
 // Queries, one array per field, DECODE_WIDTH x the global size long: texel = 2 x (index into the
 // concatenated P6 of all materials) + hdr, or -1 when the query decodes to zero for a reason known
 // on the host (empty material, padding); angles in degrees. Results: three planes r, g, b of n
@@ -126,7 +128,7 @@ __kernel void decode_batch(__global const float* p1, __global const float* c, __
   const floatv phi_v = pick(valid, wrap360(pv_in), zero);
   const floatv light_azimuth = pick(valid, wrap180(pi_in - pv_in - 90.0f), zero);  // phi' of FORMAT.md step 1
   const intv texel = pick_i(valid, code >> 1, (intv)0), hdr = code & 1;
-  const intv p6 = GATHERI(p6_index, texel);
+  const intv p6 = GATHERI(p6_index, 2 * texel);
   valid &= p6 >= 0;
   const intv p4_row = max(p6, (intv)0);
 
@@ -169,13 +171,13 @@ __kernel void decode_batch(__global const float* p1, __global const float* c, __
   // FORMAT.md step 6: P4 over phi_v (nodes pi0, pi1), P3 over theta_v (nodes ti, ti + 1), each node
   // with its scale; entry e = 2 x phi node + theta node.
   const intv p4a = p4_row * np + pi0, p4b = p4_row * np + pi1;
-  const intv p3a = GATHERI(p4_index, p4a) * nt + ti, p3b = GATHERI(p4_index, p4b) * nt + ti;
-  const floatv sa = (1.0f - pw) * GATHERF(p4_scale, p4a), sb4 = pw * GATHERF(p4_scale, p4b);
+  const intv p3a = GATHERI(p4_index, 2 * p4a) * nt + ti, p3b = GATHERI(p4_index, 2 * p4b) * nt + ti;
+  const floatv sa = (1.0f - pw) * GATHERF(p4_scale, 2 * p4a + 1), sb4 = pw * GATHERF(p4_scale, 2 * p4b + 1);
   // (Each level is written out per entry with macros: private arrays would make PoCL keep a copy
   // per work-item of the group on the stack.)
 #define M_ENTRY(e, p3e, node_w)                          \
-  const intv mi##e = 2 * GATHERI(p3_index, p3e);         \
-  const floatv entry_w##e = (node_w) * GATHERF(p3_scale, p3e);
+  const intv mi##e = 2 * GATHERI(p3_index, 2 * (p3e)); \
+  const floatv entry_w##e = (node_w) * GATHERF(p3_scale, 2 * (p3e) + 1);
   M_ENTRY(0, p3a, sa * (1.0f - tw))
   M_ENTRY(1, p3a + 1, sa * tw)
   M_ENTRY(2, p3b, sb4 * (1.0f - tw))
@@ -186,8 +188,8 @@ __kernel void decode_batch(__global const float* p1, __global const float* c, __
   const intv i2_row##e = GATHERI(m, mi##e + 1) * na + ai;
   M_ROWS(0) M_ROWS(1) M_ROWS(2) M_ROWS(3)
 #define ALPHA_ROWS(e, a)                                       \
-  const intv p1_row##e##a = GATHERI(p2_index, p2_row##e + a) * nb; \
-  const floatv p2s##e##a = GATHERF(p2_scale, p2_row##e + a);   \
+  const intv p1_row##e##a = GATHERI(p2_index, 2 * (p2_row##e + a)) * nb; \
+  const floatv p2s##e##a = GATHERF(p2_scale, 2 * (p2_row##e + a) + 1); \
   const intv i1_row##e##a = GATHERI(i2, i2_row##e + a) * nb;
   ALPHA_ROWS(0, 0) ALPHA_ROWS(0, 1) ALPHA_ROWS(1, 0) ALPHA_ROWS(1, 1)
   ALPHA_ROWS(2, 0) ALPHA_ROWS(2, 1) ALPHA_ROWS(3, 0) ALPHA_ROWS(3, 1)
@@ -205,7 +207,7 @@ __kernel void decode_batch(__global const float* p1, __global const float* c, __
   floatv r = 0.0f, gr = 0.0f, b = 0.0f;
   ADD_M_ENTRY(0) ADD_M_ENTRY(1) ADD_M_ENTRY(2) ADD_M_ENTRY(3)
 
-  const floatv s6 = pick(valid, GATHERF(p6_scale, texel), zero);
+  const floatv s6 = pick(valid, GATHERF(p6_scale, 2 * texel + 1), zero);
   VSTOREF(r * s6, g, out);
   VSTOREF(gr * s6, g, out + n);
   VSTOREF(b * s6, g, out + 2 * n);

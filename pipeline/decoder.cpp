@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
 #include "pipeline/error.h"
 #include "pipeline/opencl_runtime.h"
@@ -41,8 +42,8 @@ int wrap(int v, int n) {
 
 struct Decoder::DeviceBuffers {
   cl::Context context;  // the buffers belong to it; a reconfigured device has a new one
-  cl::Buffer p1, c, i1, i2, p2_index, p2_scale, m, p3_index, p3_scale, p4_index, p4_scale;
-  cl::Buffer p6_index, p6_scale, beta_nodes;
+  cl::Buffer p1, c, i1, i2, m, beta_nodes;
+  cl::Buffer p2, p3, p4, p6;  // (index, scale) pairs: one look-up, one cache line
   std::vector<int32_t> p6_offset;  // per material: where its P6 starts in the concatenated P6
   // The kernel with the code-books bound, and the query and result buffers of one chunk, reused
   // from call to call (guarded by Decoder::device_mutex_ for the length of a batch).
@@ -248,6 +249,18 @@ cl::Buffer upload_nonempty(ComputeDevice& dev, const std::vector<T>& v) {
   return dev.upload(v);
 }
 
+// (index, scale) pairs with the scale's bits, for tables the kernel reads as both.
+template <class I>
+std::vector<uint32_t> interleave(const std::vector<I>& index, const std::vector<float>& scale) {
+  static_assert(sizeof(I) == 4 && sizeof(float) == 4);
+  std::vector<uint32_t> out(2 * index.size());
+  for (size_t i = 0; i < index.size(); ++i) {
+    out[2 * i] = uint32_t(index[i]);
+    std::memcpy(&out[2 * i + 1], &scale[i], 4);
+  }
+  return out;
+}
+
 }  // namespace
 
 Decoder::DeviceBuffers& Decoder::device_buffers() const {
@@ -263,33 +276,28 @@ Decoder::DeviceBuffers& Decoder::device_buffers() const {
     bufs->c = upload_nonempty(dev, k.c.data());
     bufs->i1 = upload_nonempty(dev, k.i1.data());
     bufs->i2 = upload_nonempty(dev, k.i2.data());
-    bufs->p2_index = upload_nonempty(dev, k.p2_index.data());
-    bufs->p2_scale = upload_nonempty(dev, k.p2_scale.data());
     bufs->m = upload_nonempty(dev, k.m.data());
-    bufs->p3_index = upload_nonempty(dev, k.p3_index.data());
-    bufs->p3_scale = upload_nonempty(dev, k.p3_scale.data());
-    bufs->p4_index = upload_nonempty(dev, k.p4_index.data());
-    bufs->p4_scale = upload_nonempty(dev, k.p4_scale.data());
+    bufs->p2 = upload_nonempty(dev, interleave(k.p2_index.data(), k.p2_scale.data()));
+    bufs->p3 = upload_nonempty(dev, interleave(k.p3_index.data(), k.p3_scale.data()));
+    bufs->p4 = upload_nonempty(dev, interleave(k.p4_index.data(), k.p4_scale.data()));
     // All materials' P6 concatenated; the kernel gets texel indices into it.
-    std::vector<int32_t> p6i;
-    std::vector<float> p6s;
+    std::vector<uint32_t> p6;
     for (const auto& mat : db_.materials) {
-      bufs->p6_offset.push_back(int32_t(p6i.size()));
-      p6i.insert(p6i.end(), mat.p6_index.begin(), mat.p6_index.end());
-      p6s.insert(p6s.end(), mat.p6_scale.begin(), mat.p6_scale.end());
+      bufs->p6_offset.push_back(int32_t(p6.size() / 2));
+      const auto pairs = interleave(mat.p6_index, mat.p6_scale);
+      p6.insert(p6.end(), pairs.begin(), pairs.end());
       // A query's texel travels as 2 x index + HDR flag in an int.
-      if (p6i.size() >= (size_t(1) << 30)) throw DeviceError("decode_opencl: more than 2^30 texels in the database");
+      if (p6.size() / 2 >= (size_t(1) << 30)) throw DeviceError("decode_opencl: more than 2^30 texels in the database");
     }
-    bufs->p6_index = upload_nonempty(dev, p6i);
-    bufs->p6_scale = upload_nonempty(dev, p6s);
+    bufs->p6 = upload_nonempty(dev, p6);
     std::vector<float> nodes(beta_nodes_.begin(), beta_nodes_.end());
     bufs->beta_nodes = upload_nonempty(dev, nodes);
     const AngularGrid& g = k.grid;
     bufs->kernel = dev.kernel("decode.cl", "decode_batch");
     int arg = 0;
-    for (cl::Buffer* b : {&bufs->p1, &bufs->c, &bufs->i1, &bufs->i2, &bufs->p2_index, &bufs->p2_scale, &bufs->m,
-                          &bufs->p3_index, &bufs->p3_scale, &bufs->p4_index, &bufs->p4_scale, &bufs->p6_index,
-                          &bufs->p6_scale, &bufs->beta_nodes})
+    // The pair buffers are bound twice: as the kernel's X_index and X_scale.
+    for (cl::Buffer* b : {&bufs->p1, &bufs->c, &bufs->i1, &bufs->i2, &bufs->p2, &bufs->p2, &bufs->m, &bufs->p3, &bufs->p3,
+                          &bufs->p4, &bufs->p4, &bufs->p6, &bufs->p6, &bufs->beta_nodes})
       bufs->kernel.setArg(arg++, *b);
     for (int v : {g.n_beta, g.n_alpha, g.n_theta_v, g.n_phi_v}) bufs->kernel.setArg(arg++, cl_int(v));
   });
