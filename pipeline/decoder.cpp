@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <thread>
 
 #include "pipeline/error.h"
 #include "pipeline/opencl_runtime.h"
@@ -317,6 +318,17 @@ int32_t texel_code(const Material& mat, int32_t offset, int32_t x, int32_t y) {
   return 2 * (offset + y * mat.width + x) + (mat.dynamic == Dynamic::HDR ? 1 : 0);
 }
 
+// Runs f(begin, end) over [0, n) split across the cores: packing queries and unpacking results is
+// the serial part of a batch, and while it runs the device's cores would otherwise idle.
+template <class F>
+void split_over_cores(size_t n, F&& f) {
+  const size_t parts = std::min<size_t>(std::max(1u, std::thread::hardware_concurrency()), n / 32768 + 1);
+  std::vector<std::thread> helpers;
+  for (size_t p = 1; p < parts; ++p) helpers.emplace_back([&f, p, n, parts] { f(n * p / parts, n * (p + 1) / parts); });
+  f(0, n / parts);
+  for (auto& t : helpers) t.join();
+}
+
 // Maps `buffer` for the host (PoCL's CPU device hands out its own memory: no copy) and unmaps it
 // when done.
 template <class T>
@@ -378,14 +390,16 @@ std::vector<Rgb> Decoder::decode_opencl(const std::vector<DecodeQuery>& queries)
         Mapped<cl_int> texel(queue, bufs.texels, w, padded);
         Mapped<cl_float> ti(queue, bufs.theta_i, w, padded), pi(queue, bufs.phi_i, w, padded);
         Mapped<cl_float> tv(queue, bufs.theta_v, w, padded), pv(queue, bufs.phi_v, w, padded);
-        for (size_t i = 0; i < n; ++i) {
-          const DecodeQuery& q = queries[first + i];
-          texel.get()[i] = texel_code(db_.materials[q.material], bufs.p6_offset[q.material], q.x, q.y);
-          ti.get()[i] = float(q.light.theta);
-          pi.get()[i] = float(q.light.phi);
-          tv.get()[i] = float(q.view.theta);
-          pv.get()[i] = float(q.view.phi);
-        }
+        split_over_cores(n, [&](size_t begin, size_t end) {
+          for (size_t i = begin; i < end; ++i) {
+            const DecodeQuery& q = queries[first + i];
+            texel.get()[i] = texel_code(db_.materials[q.material], bufs.p6_offset[q.material], q.x, q.y);
+            ti.get()[i] = float(q.light.theta);
+            pi.get()[i] = float(q.light.phi);
+            tv.get()[i] = float(q.view.theta);
+            pv.get()[i] = float(q.view.phi);
+          }
+        });
         std::fill(texel.get() + n, texel.get() + padded, -1);
         for (const auto* a : {&ti, &pi, &tv, &pv}) std::fill(a->get() + n, a->get() + padded, 0.0f);
       }
@@ -394,7 +408,9 @@ std::vector<Rgb> Decoder::decode_opencl(const std::vector<DecodeQuery>& queries)
       queue.enqueueNDRangeKernel(k, cl::NullRange, cl::NDRange(padded / kQueriesPerItem), cl::NDRange(kPad / kQueriesPerItem));
       Mapped<cl_float> rgb(queue, bufs.rgb, CL_MAP_READ, 3 * padded);
       const float* r = rgb.get();
-      for (size_t i = 0; i < n; ++i) out[first + i] = {r[i], r[padded + i], r[2 * padded + i]};
+      split_over_cores(n, [&](size_t begin, size_t end) {
+        for (size_t i = begin; i < end; ++i) out[first + i] = {r[i], r[padded + i], r[2 * padded + i]};
+      });
     }
   });
   return out;
