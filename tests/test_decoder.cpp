@@ -237,6 +237,18 @@ TEST_CASE("the OpenCL batch decoder agrees with the reference near the pole and 
   CHECK(lit == decodable);  // grazing light on proposte is not black: the comparison is not between zeros
 }
 
+// More than one chunk (2^20 queries per launch): the second, partly filled chunk reuses the
+// first one's buffers.
+TEST_CASE("the OpenCL batch decoder agrees with the reference across chunks") {
+  REQUIRE(ComputeDevice::get().uses_opencl());
+  const Decoder dec(alu());
+  const auto q = random_queries(alu(), (size_t(1) << 20) + 1500, 11);
+  const auto ref = dec.decode_reference(q);
+  const auto gpu = dec.decode_opencl(q);
+  REQUIRE(gpu.size() == q.size());
+  CHECK(mismatches(ref, gpu) == 0);
+}
+
 // A renderer's batch: whole images under one light and view, large enough to take several
 // work-groups and a partly filled last one.
 TEST_CASE("the OpenCL batch decoder agrees with the reference on whole images") {
