@@ -7,8 +7,8 @@
 //
 // The machine is shared, so besides wall time every rate is also given per CPU second (of this
 // thread for single-thread figures, of the whole process, PoCL's workers included, for the batch):
-// that figure does not drop when the neighbours are busy, and cores x it is what the batch reaches
-// on an idle machine.
+// that figure drops much less when the neighbours are busy, and cores x it estimates what the batch
+// reaches on an idle machine.
 #include <algorithm>
 #include <cmath>
 #include <ctime>
@@ -117,8 +117,8 @@ int main(int argc, char** argv) {
         "(kernels/decode.cl, "
      << ComputeDevice::get().description()
      << ") and of its C++ reference Decoder::decode_reference on the same queries, in wall time and per CPU "
-        "second of the whole process (the machine is shared: "
-     << cores << " cores x the per-CPU-second rate is what an idle machine gives).\n\n"
+        "second of the whole process (the machine is shared; "
+     << cores << " cores x the per-CPU-second rate estimates what an idle machine gives).\n\n"
      << "| material | pattern | single-thread (M/s) | batch OpenCL (M/s wall) | batch OpenCL (M/CPU-s) | "
         "batch C++ reference (M/s wall) | OpenCL / reference (wall) | max rel. difference |\n"
      << "|---|---|---|---|---|---|---|---|\n";
