@@ -76,8 +76,9 @@ floatv wrap180(floatv a) { return a - 360.0f * floor(a / 360.0f + 0.5f); }
 // Position of x in a grid of nodes 0, step, 2 step, ... clamped to cell [0, last_cell]: the cell and
 // the weight of its second node.
 intv cell_of(floatv x, float step, int last_cell, floatv* w) {
-  const intv i = clamp_i(CONVERT_INT(floor(x / step)), 0, last_cell);
-  *w = clamp((x - CONVERT_FLOAT(i) * step) / step, 0.0f, 1.0f);
+  const floatv cells = x * (1.0f / step);
+  const intv i = clamp_i(CONVERT_INT(floor(cells)), 0, last_cell);
+  *w = clamp(cells - CONVERT_FLOAT(i), 0.0f, 1.0f);
   return i;
 }
 
@@ -88,10 +89,11 @@ void add_rgb(floatv l, floatv a, floatv b, intv hdr, floatv w, floatv* r, floatv
   const floatv lg = fmax(1.1643828f * l - 0.39176172f * a - 0.81296875f * b + 135.576f, 0.0f);
   const floatv lb = fmax(1.1643828f * l + 2.0172344f * a - 276.836f, 0.0f);
   const floatv Y = fmax(l, 0.0f);
-  const floatv u = a / 255.0f;
-  const floatv v = fmax(b / 255.0f, 1e-6f);
-  const floatv X = Y * 9.0f * u / (4.0f * v);
-  const floatv Z = Y * (12.0f - 3.0f * u - 20.0f * v) / (4.0f * v);
+  const floatv u = a * (1.0f / 255.0f);
+  const floatv v = fmax(b * (1.0f / 255.0f), 1e-6f);
+  const floatv y_4v = Y / (4.0f * v);  // one division: they are the slowest vector instruction here
+  const floatv X = 9.0f * u * y_4v;
+  const floatv Z = (12.0f - 3.0f * u - 20.0f * v) * y_4v;
   const intv lit = Y > 1e-12f;
   const intv use_hdr = hdr != 0;
   const floatv hr = pick(lit, 3.2404542f * X - 1.5371385f * Y - 0.4985314f * Z, (floatv)0.0f);
