@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+#include <thread>
 
 #include "pipeline/error.h"
 #include "pipeline/opencl_runtime.h"
@@ -41,8 +43,14 @@ int wrap(int v, int n) {
 
 struct Decoder::DeviceBuffers {
   cl::Context context;  // the buffers belong to it; a reconfigured device has a new one
-  cl::Buffer p1, c, i1, i2, p2_index, p2_scale, m, p3_index, p3_scale, p4_index, p4_scale;
-  cl::Buffer p6_index, p6_scale, materials;
+  cl::Buffer p1, c, i1, i2, m, beta_nodes;
+  cl::Buffer p2, p3, p4, p6;  // (index, scale) pairs: one look-up, one cache line
+  std::vector<int32_t> p6_offset;  // per material: where its P6 starts in the concatenated P6
+  // The kernel with the code-books bound, and the query and result buffers of one chunk, reused
+  // from call to call (guarded by Decoder::device_mutex_ for the length of a batch).
+  cl::Kernel kernel;
+  size_t capacity = 0;
+  cl::Buffer texels, theta_i, phi_i, theta_v, phi_v, rgb;
 };
 
 Decoder::Decoder(const Database& db) : db_(db) {
@@ -89,10 +97,33 @@ Rgb Decoder::evaluate(size_t material, int x, int y, const Direction& light, con
   return {float(v.r * s6), float(v.g * s6), float(v.b * s6)};
 }
 
-Rgb Decoder::evaluate_p4(uint32_t p4_row, bool hdr, const Direction& light, const Direction& view) const {
-  if (!(light.theta <= 90.0 && view.theta <= 90.0) || !std::isfinite(light.phi) || !std::isfinite(view.phi)) return {};
-  const AngularGrid& grid = db_.codebooks.grid;
+namespace {
 
+// Everything FORMAT.md steps 1-4 and 6 derive from the directions alone: the interpolation cells and
+// weights. A renderer asks for many texels under one light and view, so the last geometry each
+// thread computed is kept and reused when the directions and the grid are the same (the values are
+// those the computation gives, so results do not depend on the cache).
+struct Geometry {
+  double light_theta = std::nan(""), light_phi = 0, view_theta = 0, view_phi = 0;
+  int nb = 0, na = 0, nt = 0, np = 0;
+  Hermite hermite{0, 0.0, 3};
+  double bw = 0;
+  int alpha_node[2] = {0, 0};
+  double alpha_w[2] = {0, 0};
+  int phi_node[2] = {0, 0};
+  double phi_w[2] = {0, 0};
+  int theta_node[2] = {0, 0};
+  double theta_w[2] = {0, 0};
+
+  bool same(const Direction& light, const Direction& view, const AngularGrid& g) const {
+    return light.theta == light_theta && light.phi == light_phi && view.theta == view_theta && view.phi == view_phi &&
+           g.n_beta == nb && g.n_alpha == na && g.n_theta_v == nt && g.n_phi_v == np;
+  }
+};
+
+void compute_geometry(Geometry& geo, const AngularGrid& grid, const std::vector<double>& beta_nodes,
+                      const Direction& light, const Direction& view) {
+  const int nb = grid.n_beta;
   // Steps 1-3: onion angles of the light for this view azimuth (to_onion of parametrization.h, with
   // sin(beta) = x and cos(beta) = sqrt(1 - x^2) instead of two more trigonometric calls), and the
   // four interpolation cells.
@@ -100,28 +131,79 @@ Rgb Decoder::evaluate_p4(uint32_t p4_row, bool hdr, const Direction& light, cons
   const double sb = std::clamp(std::cos(phi) * sin_t, -1.0, 1.0), ly = std::sin(phi) * sin_t;
   const double cos_b = std::sqrt(1.0 - sb * sb);
   const OnionAngles onion{cos_b > 0 ? std::asin(std::clamp(ly / cos_b, -1.0, 1.0)) / kDeg : 0.0, std::asin(sb) / kDeg};
-  const int bi = std::clamp(int(std::floor((sb + 1.0) / 2.0 * (nb_ - 1))), 0, nb_ - 2);
-  const double bw = std::clamp((onion.beta - beta_nodes_[size_t(bi)]) / (beta_nodes_[size_t(bi) + 1] - beta_nodes_[size_t(bi)]), 0.0, 1.0);
+  const int bi = std::clamp(int(std::floor((sb + 1.0) / 2.0 * (nb - 1))), 0, nb - 2);
+  geo.bw = std::clamp((onion.beta - beta_nodes[size_t(bi)]) / (beta_nodes[size_t(bi) + 1] - beta_nodes[size_t(bi)]), 0.0, 1.0);
+  geo.hermite = Hermite(bi, geo.bw, nb);
   const Cell ac = grid.alpha_cell(onion.alpha);
   const Cell tc = grid.theta_v_cell(view.theta);
   const Cell pc = grid.phi_v_cell(view.phi);
-  const Hermite hermite(bi, bw, nb_);
-  const int alpha_node[2] = {ac.i0, ac.i1};
-  const double alpha_w[2] = {1.0 - ac.w, ac.w};
-  const size_t beta0 = size_t(bi), beta1 = size_t(bi) + 1;
+  geo.alpha_node[0] = ac.i0;
+  geo.alpha_node[1] = ac.i1;
+  geo.alpha_w[0] = 1.0 - ac.w;
+  geo.alpha_w[1] = ac.w;
+  geo.phi_node[0] = pc.i0;
+  geo.phi_node[1] = pc.i1;
+  geo.phi_w[0] = 1.0 - pc.w;
+  geo.phi_w[1] = pc.w;
+  geo.theta_node[0] = tc.i0;
+  geo.theta_node[1] = tc.i1;
+  geo.theta_w[0] = tc.i0 == tc.i1 ? 1.0 : 1.0 - tc.w;
+  geo.theta_w[1] = tc.i0 == tc.i1 ? 0.0 : tc.w;
+  geo.light_theta = light.theta;
+  geo.light_phi = light.phi;
+  geo.view_theta = view.theta;
+  geo.view_phi = view.phi;
+  geo.nb = grid.n_beta;
+  geo.na = grid.n_alpha;
+  geo.nt = grid.n_theta_v;
+  geo.np = grid.n_phi_v;
+}
+
+}  // namespace
+
+Rgb Decoder::evaluate_p4(uint32_t p4_row, bool hdr, const Direction& light, const Direction& view) const {
+  if (!(light.theta <= 90.0 && view.theta <= 90.0) || !std::isfinite(light.phi) || !std::isfinite(view.phi)) return {};
+  thread_local Geometry geo;
+  if (!geo.same(light, view, db_.codebooks.grid)) compute_geometry(geo, db_.codebooks.grid, beta_nodes_, light, view);
+  const Hermite& hermite = geo.hermite;
+  const double bw = geo.bw;
+  const size_t beta0 = size_t(hermite.i), beta1 = beta0 + 1;
+
+  // The code-books are followed level by level for all (up to) four M entries and both alpha nodes
+  // at once, so that the look-ups of one level do not wait for each other (for random queries the
+  // tables are not in cache and each level is a memory latency). The arithmetic below is the same
+  // as entry by entry.
+  // Step 6 nodes: P4 over phi_v (wrapping), P3 over theta_v.
+  const size_t p4 = size_t(p4_row) * np_;
+  size_t p3_row[2];
+  for (int p = 0; p < 2; ++p) p3_row[p] = size_t(p4_index_[p4 + size_t(geo.phi_node[p])]) * nt_;
+  uint32_t mi[2][2];
+  for (int p = 0; p < 2; ++p)
+    for (int t = 0; t < 2; ++t) mi[p][t] = p3_index_[p3_row[p] + size_t(geo.theta_node[t])];
+  // Step 5 rows: M -> (P2 row, I2 row) -> per alpha node (P1 row, P2 scale) and I1 row.
+  const float* p1_row[2][2][2];
+  float p2s[2][2][2];
+  const uint32_t* i1_row[2][2][2];
+  for (int p = 0; p < 2; ++p)
+    for (int t = 0; t < 2; ++t) {
+      const uint32_t* me = m_ + size_t(mi[p][t]) * 2;
+      const size_t p2 = size_t(me[0]) * size_t(na_), i2 = size_t(me[1]) * size_t(na_);
+      for (int a = 0; a < 2; ++a) {
+        const size_t an = size_t(geo.alpha_node[a]);
+        p1_row[p][t][a] = p1_ + size_t(p2_index_[p2 + an]) * size_t(nb_);
+        p2s[p][t][a] = p2_scale_[p2 + an];
+        i1_row[p][t][a] = i1_ + size_t(i2_[i2 + an]) * size_t(nb_);
+      }
+    }
 
   // Step 5: one M entry -> RGB.
-  auto decode_m = [&](uint32_t mi) {
-    const uint32_t* me = m_ + size_t(mi) * 2;
-    const size_t p2 = size_t(me[0]) * size_t(na_), i2 = size_t(me[1]) * size_t(na_);
+  auto decode_m = [&](int p, int t) {
     double yy = 0, cb = 0, cr = 0;
     for (int a = 0; a < 2; ++a) {
-      const size_t an = size_t(alpha_node[a]);
-      const double w = alpha_w[a];
-      yy += w * double(p2_scale_[p2 + an]) * hermite(p1_ + size_t(p2_index_[p2 + an]) * size_t(nb_));
-      const uint32_t* i1 = i1_ + size_t(i2_[i2 + an]) * size_t(nb_);
-      const float* c0 = c_ + size_t(i1[beta0]) * 2;
-      const float* c1 = c_ + size_t(i1[beta1]) * 2;
+      const double w = geo.alpha_w[a];
+      yy += w * double(p2s[p][t][a]) * hermite(p1_row[p][t][a]);
+      const float* c0 = c_ + size_t(i1_row[p][t][a][beta0]) * 2;
+      const float* c1 = c_ + size_t(i1_row[p][t][a][beta1]) * 2;
       cb += w * ((1.0 - bw) * double(c0[0]) + bw * double(c1[0]));
       cr += w * ((1.0 - bw) * double(c0[1]) + bw * double(c1[1]));
     }
@@ -129,22 +211,14 @@ Rgb Decoder::evaluate_p4(uint32_t p4_row, bool hdr, const Direction& light, cons
   };
 
   // Step 6: P4 over phi_v (wrapping), P3 over theta_v, each node with its own scale; then P6.
-  const int phi_node[2] = {pc.i0, pc.i1};
-  const double phi_w[2] = {1.0 - pc.w, pc.w};
-  const int theta_node[2] = {tc.i0, tc.i1};
-  const double theta_w[2] = {tc.i0 == tc.i1 ? 1.0 : 1.0 - tc.w, tc.i0 == tc.i1 ? 0.0 : tc.w};
   double r = 0, g = 0, b = 0;
-  const size_t p4 = size_t(p4_row) * np_;
   for (int p = 0; p < 2; ++p) {
-    if (phi_w[p] == 0.0) continue;
-    const size_t pn = size_t(phi_node[p]);
-    const size_t p3 = size_t(p4_index_[p4 + pn]) * nt_;
-    const double s4 = phi_w[p] * double(p4_scale_[p4 + pn]);
+    if (geo.phi_w[p] == 0.0) continue;
+    const double s4 = geo.phi_w[p] * double(p4_scale_[p4 + size_t(geo.phi_node[p])]);
     for (int t = 0; t < 2; ++t) {
-      if (theta_w[t] == 0.0) continue;
-      const size_t tn = size_t(theta_node[t]);
-      const double s = s4 * theta_w[t] * double(p3_scale_[p3 + tn]);
-      const Rgb v = decode_m(p3_index_[p3 + tn]);
+      if (geo.theta_w[t] == 0.0) continue;
+      const double s = s4 * geo.theta_w[t] * double(p3_scale_[p3_row[p] + size_t(geo.theta_node[t])]);
+      const Rgb v = decode_m(p, t);
       r += s * double(v.r);
       g += s * double(v.g);
       b += s * double(v.b);
@@ -176,6 +250,18 @@ cl::Buffer upload_nonempty(ComputeDevice& dev, const std::vector<T>& v) {
   return dev.upload(v);
 }
 
+// (index, scale) pairs with the scale's bits, for tables the kernel reads as both.
+template <class I>
+std::vector<uint32_t> interleave(const std::vector<I>& index, const std::vector<float>& scale) {
+  static_assert(sizeof(I) == 4 && sizeof(float) == 4);
+  std::vector<uint32_t> out(2 * index.size());
+  for (size_t i = 0; i < index.size(); ++i) {
+    out[2 * i] = uint32_t(index[i]);
+    std::memcpy(&out[2 * i + 1], &scale[i], 4);
+  }
+  return out;
+}
+
 }  // namespace
 
 Decoder::DeviceBuffers& Decoder::device_buffers() const {
@@ -191,29 +277,84 @@ Decoder::DeviceBuffers& Decoder::device_buffers() const {
     bufs->c = upload_nonempty(dev, k.c.data());
     bufs->i1 = upload_nonempty(dev, k.i1.data());
     bufs->i2 = upload_nonempty(dev, k.i2.data());
-    bufs->p2_index = upload_nonempty(dev, k.p2_index.data());
-    bufs->p2_scale = upload_nonempty(dev, k.p2_scale.data());
     bufs->m = upload_nonempty(dev, k.m.data());
-    bufs->p3_index = upload_nonempty(dev, k.p3_index.data());
-    bufs->p3_scale = upload_nonempty(dev, k.p3_scale.data());
-    bufs->p4_index = upload_nonempty(dev, k.p4_index.data());
-    bufs->p4_scale = upload_nonempty(dev, k.p4_scale.data());
-    // All materials' P6 concatenated; per material (offset, width, height, hdr).
-    std::vector<int32_t> p6i;
-    std::vector<float> p6s;
-    std::vector<cl_int> table;
+    bufs->p2 = upload_nonempty(dev, interleave(k.p2_index.data(), k.p2_scale.data()));
+    bufs->p3 = upload_nonempty(dev, interleave(k.p3_index.data(), k.p3_scale.data()));
+    bufs->p4 = upload_nonempty(dev, interleave(k.p4_index.data(), k.p4_scale.data()));
+    // All materials' P6 concatenated; the kernel gets texel indices into it.
+    std::vector<uint32_t> p6;
     for (const auto& mat : db_.materials) {
-      table.insert(table.end(), {cl_int(p6i.size()), cl_int(mat.width), cl_int(mat.height), cl_int(mat.dynamic == Dynamic::HDR)});
-      p6i.insert(p6i.end(), mat.p6_index.begin(), mat.p6_index.end());
-      p6s.insert(p6s.end(), mat.p6_scale.begin(), mat.p6_scale.end());
+      bufs->p6_offset.push_back(int32_t(p6.size() / 2));
+      const auto pairs = interleave(mat.p6_index, mat.p6_scale);
+      p6.insert(p6.end(), pairs.begin(), pairs.end());
+      // A query's texel travels as 2 x index + HDR flag in an int.
+      if (p6.size() / 2 >= (size_t(1) << 30)) throw DeviceError("decode_opencl: more than 2^30 texels in the database");
     }
-    bufs->p6_index = upload_nonempty(dev, p6i);
-    bufs->p6_scale = upload_nonempty(dev, p6s);
-    bufs->materials = upload_nonempty(dev, table);
+    bufs->p6 = upload_nonempty(dev, p6);
+    std::vector<float> nodes(beta_nodes_.begin(), beta_nodes_.end());
+    bufs->beta_nodes = upload_nonempty(dev, nodes);
+    const AngularGrid& g = k.grid;
+    bufs->kernel = dev.kernel("decode.cl", "decode_batch");
+    int arg = 0;
+    // The pair buffers are bound twice: as the kernel's X_index and X_scale.
+    for (cl::Buffer* b : {&bufs->p1, &bufs->c, &bufs->i1, &bufs->i2, &bufs->p2, &bufs->p2, &bufs->m, &bufs->p3, &bufs->p3,
+                          &bufs->p4, &bufs->p4, &bufs->p6, &bufs->p6, &bufs->beta_nodes})
+      bufs->kernel.setArg(arg++, *b);
+    for (int v : {g.n_beta, g.n_alpha, g.n_theta_v, g.n_phi_v}) bufs->kernel.setArg(arg++, cl_int(v));
   });
   device_ = std::move(bufs);
   return *device_;
 }
+
+namespace {
+
+// The host's part of one query: the index of its texel in the concatenated P6 of all materials
+// (texel indices wrap modulo the material size), times two, plus the HDR flag; -1 for a material
+// without texels.
+int32_t texel_code(const Material& mat, int32_t offset, int32_t x, int32_t y) {
+  if (mat.width <= 0 || mat.height <= 0) return -1;
+  if (uint32_t(x) >= uint32_t(mat.width)) x = wrap(x, mat.width);
+  if (uint32_t(y) >= uint32_t(mat.height)) y = wrap(y, mat.height);
+  return 2 * (offset + y * mat.width + x) + (mat.dynamic == Dynamic::HDR ? 1 : 0);
+}
+
+// Runs f(begin, end) over [0, n) split across the cores: packing queries and unpacking results is
+// the serial part of a batch, and while it runs the device's cores would otherwise idle.
+template <class F>
+void split_over_cores(size_t n, F&& f) {
+  const size_t parts = std::min<size_t>(std::max(1u, std::thread::hardware_concurrency()), n / 32768 + 1);
+  std::vector<std::thread> helpers;
+  for (size_t p = 1; p < parts; ++p) helpers.emplace_back([&f, p, n, parts] { f(n * p / parts, n * (p + 1) / parts); });
+  f(0, n / parts);
+  for (auto& t : helpers) t.join();
+}
+
+// Maps `buffer` for the host (PoCL's CPU device hands out its own memory: no copy) and unmaps it
+// when done.
+template <class T>
+class Mapped {
+ public:
+  Mapped(cl::CommandQueue& queue, const cl::Buffer& buffer, cl_map_flags flags, size_t count)
+      : queue_(queue), buffer_(buffer) {
+    ptr_ = static_cast<T*>(queue.enqueueMapBuffer(buffer, CL_TRUE, flags, 0, count * sizeof(T)));
+  }
+  ~Mapped() {
+    try {
+      queue_.enqueueUnmapMemObject(buffer_, ptr_);
+    } catch (const cl::Error&) {  // nothing sensible to do in a destructor; the buffer stays mapped
+    }
+  }
+  Mapped(const Mapped&) = delete;
+  Mapped& operator=(const Mapped&) = delete;
+  T* get() const { return ptr_; }
+
+ private:
+  cl::CommandQueue& queue_;
+  const cl::Buffer& buffer_;
+  T* ptr_ = nullptr;
+};
+
+}  // namespace
 
 std::vector<Rgb> Decoder::decode_opencl(const std::vector<DecodeQuery>& queries) const {
   auto& dev = ComputeDevice::get();
@@ -221,46 +362,57 @@ std::vector<Rgb> Decoder::decode_opencl(const std::vector<DecodeQuery>& queries)
   for (const auto& q : queries) check_material(q.material);
   std::vector<Rgb> out(queries.size());
   if (queries.empty()) return out;
+  std::lock_guard<std::mutex> lock(batch_mutex_);
   DeviceBuffers& bufs = device_buffers();
-  const AngularGrid& g = db_.codebooks.grid;
-  constexpr size_t kChunk = size_t(1) << 20;  // bounds the query buffers for very large batches
-  for (size_t first = 0; first < queries.size(); first += kChunk) {
-    const size_t n = std::min(kChunk, queries.size() - first);
-    std::vector<cl_int> texel(n * 4);
-    std::vector<cl_float> angles(n * 4);
-    for (size_t i = 0; i < n; ++i) {
-      const DecodeQuery& q = queries[first + i];
-      texel[i * 4 + 0] = cl_int(q.material);
-      texel[i * 4 + 1] = q.x;
-      texel[i * 4 + 2] = q.y;
-      texel[i * 4 + 3] = 0;
-      angles[i * 4 + 0] = float(q.light.theta);
-      angles[i * 4 + 1] = float(q.light.phi);
-      angles[i * 4 + 2] = float(q.view.theta);
-      angles[i * 4 + 3] = float(q.view.phi);
+  // Chunks bound the query buffers for very large batches; each is padded to whole work-groups of
+  // kQueriesPerItem-wide work-items with queries that decode to zero.
+  constexpr size_t kChunk = size_t(1) << 20, kPad = 1024, kQueriesPerItem = 16;  // 16: DECODE_WIDTH of decode.cl
+  const size_t capacity = std::min(kChunk, round_up(queries.size(), kPad));
+  opencl_call("decode kernel", [&] {
+    cl::CommandQueue& queue = dev.queue();
+    if (bufs.capacity < capacity) {
+      const cl_mem_flags in = CL_MEM_READ_ONLY | CL_MEM_ALLOC_HOST_PTR;
+      bufs.texels = dev.allocate(capacity * sizeof(cl_int), in);
+      bufs.theta_i = dev.allocate(capacity * sizeof(cl_float), in);
+      bufs.phi_i = dev.allocate(capacity * sizeof(cl_float), in);
+      bufs.theta_v = dev.allocate(capacity * sizeof(cl_float), in);
+      bufs.phi_v = dev.allocate(capacity * sizeof(cl_float), in);
+      bufs.rgb = dev.allocate(capacity * 3 * sizeof(cl_float), CL_MEM_WRITE_ONLY | CL_MEM_ALLOC_HOST_PTR);
+      bufs.capacity = capacity;
     }
-    std::vector<cl_float> rgb(n * 3);
-    opencl_call("decode kernel", [&] {
-      cl::Buffer bt = dev.upload(texel), ba = dev.upload(angles);
-      cl::Buffer bo = dev.allocate(rgb.size() * sizeof(cl_float), CL_MEM_WRITE_ONLY);
-      cl::Kernel k = dev.kernel("decode.cl", "decode_batch");
-      int arg = 0;
-      for (cl::Buffer* b : {&bufs.p1, &bufs.c, &bufs.i1, &bufs.i2, &bufs.p2_index, &bufs.p2_scale, &bufs.m, &bufs.p3_index,
-                            &bufs.p3_scale, &bufs.p4_index, &bufs.p4_scale, &bufs.p6_index, &bufs.p6_scale, &bufs.materials})
-        k.setArg(arg++, *b);
-      k.setArg(arg++, cl_int(g.n_beta));
-      k.setArg(arg++, cl_int(g.n_alpha));
-      k.setArg(arg++, cl_int(g.n_theta_v));
-      k.setArg(arg++, cl_int(g.n_phi_v));
-      k.setArg(arg++, bt);
-      k.setArg(arg++, ba);
-      k.setArg(arg++, bo);
-      k.setArg(arg++, cl_uint(n));
-      dev.queue().enqueueNDRangeKernel(k, cl::NullRange, cl::NDRange(round_up(n, 64)));
-      dev.download(bo, rgb);
-    });
-    for (size_t i = 0; i < n; ++i) out[first + i] = {rgb[i * 3], rgb[i * 3 + 1], rgb[i * 3 + 2]};
-  }
+    cl::Kernel& k = bufs.kernel;
+    int arg = 18;
+    for (cl::Buffer* b : {&bufs.texels, &bufs.theta_i, &bufs.phi_i, &bufs.theta_v, &bufs.phi_v, &bufs.rgb}) k.setArg(arg++, *b);
+    for (size_t first = 0; first < queries.size(); first += kChunk) {
+      const size_t n = std::min(kChunk, queries.size() - first), padded = round_up(n, kPad);
+      {
+        const cl_map_flags w = CL_MAP_WRITE_INVALIDATE_REGION;
+        Mapped<cl_int> texel(queue, bufs.texels, w, padded);
+        Mapped<cl_float> ti(queue, bufs.theta_i, w, padded), pi(queue, bufs.phi_i, w, padded);
+        Mapped<cl_float> tv(queue, bufs.theta_v, w, padded), pv(queue, bufs.phi_v, w, padded);
+        split_over_cores(n, [&](size_t begin, size_t end) {
+          for (size_t i = begin; i < end; ++i) {
+            const DecodeQuery& q = queries[first + i];
+            texel.get()[i] = texel_code(db_.materials[q.material], bufs.p6_offset[q.material], q.x, q.y);
+            ti.get()[i] = float(q.light.theta);
+            pi.get()[i] = float(q.light.phi);
+            tv.get()[i] = float(q.view.theta);
+            pv.get()[i] = float(q.view.phi);
+          }
+        });
+        std::fill(texel.get() + n, texel.get() + padded, -1);
+        for (const auto* a : {&ti, &pi, &tv, &pv}) std::fill(a->get() + n, a->get() + padded, 0.0f);
+      }
+      k.setArg(24, cl_uint(padded));
+      // A fixed work-group size: PoCL compiles a kernel once per work-group size it is launched with.
+      queue.enqueueNDRangeKernel(k, cl::NullRange, cl::NDRange(padded / kQueriesPerItem), cl::NDRange(kPad / kQueriesPerItem));
+      Mapped<cl_float> rgb(queue, bufs.rgb, CL_MAP_READ, 3 * padded);
+      const float* r = rgb.get();
+      split_over_cores(n, [&](size_t begin, size_t end) {
+        for (size_t i = begin; i < end; ++i) out[first + i] = {r[i], r[padded + i], r[2 * padded + i]};
+      });
+    }
+  });
   return out;
 }
 
