@@ -1,8 +1,10 @@
 #include "pipeline/renderer_api.h"
 
 #include <cmath>
+#include <filesystem>
 
 #include "pipeline/albedo.h"
+#include "pipeline/btfbase.h"
 #include "pipeline/codebook.h"
 #include "pipeline/database.h"
 #include "pipeline/decoder.h"
@@ -26,6 +28,9 @@ struct BtfDatabaseState {
 };
 
 BtfDatabase BtfDatabase::open(const std::string& path) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec))
+    return BtfDatabase(std::make_shared<const BtfDatabaseState>(import_btfbase(path), path));
   return BtfDatabase(std::make_shared<const BtfDatabaseState>(read_database(path), path));
 }
 

@@ -67,9 +67,10 @@ class BtfMaterial {
 
 class BtfDatabase {
  public:
-  // Reads and validates the whole file once (its sections are packed and entropy-coded, so they
-  // are decoded into memory rather than mapped). InputError for a missing or unreadable file,
-  // CorruptError (naming file and section) for a damaged one.
+  // Reads and validates a .btfdb file once (its sections are packed and entropy-coded, so they are
+  // decoded into memory rather than mapped), or imports a BTFBASE directory of the original
+  // compressor. InputError for a missing or unreadable path, CorruptError (naming file and
+  // section) for a damaged one.
   static BtfDatabase open(const std::string& path);
   // A database already in memory (e.g. imported from BTFBASE). Throws CorruptError if it does not validate.
   static BtfDatabase from_memory(Database db);

@@ -212,6 +212,9 @@ LightSample LightSampler::sample(size_t material, int x, int y, const Vec3& view
   const double cb = std::sqrt(std::max(0.0, 1.0 - s * s));
   const double ly = std::sin(alpha) * cb, lz = std::cos(alpha) * cb;
   const Vec3 d{s * mx.e1.x + ly * mx.e2.x, s * mx.e1.y + ly * mx.e2.y, std::max(lz, 0.0)};
+  // At the poles A and B (sin beta = +-1) every alpha is the same direction; pdf() reads them at
+  // alpha = 0, and the sample reports the same value so that the two always agree.
+  if (!(cb > 0)) return {d, pdf(material, x, y, d, view)};
   const double f = (1.0 - tb) * gcol[kb] + tb * gcol[kb + 1];
   return {d, f / z};
 }
