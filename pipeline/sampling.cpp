@@ -59,6 +59,16 @@ LightSampler::LightSampler(const Decoder& decoder) : decoder_(decoder) {
   const Codebooks& k = db.codebooks;
   na_ = k.grid.n_alpha;
   nb_ = k.grid.n_beta;
+  nt_ = k.grid.n_theta_v;
+  np_ = k.grid.n_phi_v;
+  view_nodes_.resize(k.p4_index.rows() * size_t(np_) * size_t(nt_));
+  for (size_t p4 = 0; p4 < k.p4_index.rows(); ++p4)
+    for (int p = 0; p < np_; ++p) {
+      const uint32_t p3 = k.p4_index.at(p4, size_t(p));
+      for (int t = 0; t < nt_; ++t)
+        view_nodes_[(p4 * size_t(np_) + size_t(p)) * size_t(nt_) + size_t(t)] = {
+            k.m.at(k.p3_index.at(p3, size_t(t)), 0), k.p4_scale.at(p4, size_t(p)) * k.p3_scale.at(p3, size_t(t))};
+    }
   d_alpha_ = kPi / (na_ - 1);
   d_s_ = 2.0 / (nb_ - 1);
   bool used[2] = {false, false};
@@ -120,8 +130,7 @@ LightSampler::Mixture LightSampler::mixture(size_t material, int x, int y, const
   mx.hdr = mat.dynamic == Dynamic::HDR;
 
   // The decoder's view blend (FORMAT.md step 6): P4 over phi_v, P3 over theta_v, with their scales.
-  const Codebooks& k = db.codebooks;
-  const AngularGrid& g = k.grid;
+  const AngularGrid& g = db.codebooks.grid;
   double phi_v = std::atan2(view.y, view.x) / kDeg;
   if (phi_v < 0) phi_v += 360;
   const double theta_v = std::acos(std::clamp(view.z / len, -1.0, 1.0)) / kDeg;
@@ -131,21 +140,23 @@ LightSampler::Mixture LightSampler::mixture(size_t material, int x, int y, const
   const int theta_node[2] = {tc.i0, tc.i1};
   const double theta_w[2] = {tc.i0 == tc.i1 ? 1.0 : 1.0 - tc.w, tc.i0 == tc.i1 ? 0.0 : tc.w};
   double mean = 0;
+  const ViewNode* row = view_nodes_.data() + size_t(p4_row) * size_t(np_) * size_t(nt_);
   for (int p = 0; p < 2; ++p) {
     if (!(phi_w[p] > 0)) continue;
-    const size_t pn = size_t(phi_node[p]);
-    const uint32_t p3 = k.p4_index.at(size_t(p4_row), pn);
-    const double s4 = phi_w[p] * double(k.p4_scale.at(size_t(p4_row), pn));
     for (int t = 0; t < 2; ++t) {
       if (!(theta_w[t] > 0)) continue;
-      const size_t tn = size_t(theta_node[t]);
-      const double w = s4 * theta_w[t] * double(k.p3_scale.at(p3, tn));
+      const ViewNode& node = row[size_t(phi_node[p]) * size_t(nt_) + size_t(theta_node[t])];
+      const double w = phi_w[p] * theta_w[t] * double(node.scale);
       if (!(w > 0)) continue;  // a negative blend weight cannot be a density; such entries are dropped
-      const uint32_t p2 = k.m.at(k.p3_index.at(p3, tn), 0);
+      // The entry's tables are read right after this; start fetching them now, in parallel (the
+      // marginal needs the row integrals, the conditional two rows of nodes not known yet).
+      const float* nodes_q = nodes(node.p2, mx.hdr);
+      for (size_t off = 0; off < size_t(na_) * size_t(nb_); off += 16) __builtin_prefetch(nodes_q + off);
+      __builtin_prefetch(rows(node.p2, mx.hdr));
       mx.w[mx.n] = w;
-      mx.p2[mx.n] = p2;
+      mx.p2[mx.n] = node.p2;
       ++mx.n;
-      mean += w * double(mean_lum_[mx.hdr ? 1 : 0][p2]);
+      mean += w * double(mean_lum_[mx.hdr ? 1 : 0][node.p2]);
     }
   }
   if (!(mean > 0)) return mx;

@@ -40,7 +40,8 @@ double sampling_luminance(const Rgb& rgb, bool hdr);
 class LightSampler {
  public:
   // Precomputes, per P2 entry, the luminance at the (alpha, beta) nodes and its integrals along
-  // beta (so a sample reads 4 P2 rows and blends them). Keeps a reference to `decoder` (and through
+  // beta, and per P4 entry the P2 entries and scales of its view nodes (so a sample reads 4 P2
+  // rows and blends them). Keeps a reference to `decoder` (and through
   // it to the database): both must outlive the sampler. Thread-safe after construction.
   explicit LightSampler(const Decoder& decoder);
 
@@ -61,7 +62,14 @@ class LightSampler {
   const float* rows(uint32_t p2, bool hdr) const;
 
   const Decoder& decoder_;
-  int na_, nb_;
+  int na_, nb_, nt_, np_;
+  // Per P4 entry and view node (phi_v, theta_v): the P2 entry its chain P4 -> P3 -> M reaches and
+  // the product of the P4 and P3 scales, so a query skips two dependent look-ups.
+  struct ViewNode {
+    uint32_t p2;
+    float scale;
+  };
+  std::vector<ViewNode> view_nodes_;
   double d_alpha_, d_s_;  // grid steps in radians and in sin(beta)
   // Per dynamic range (0 LDR, 1 HDR; built only if a material uses it), per P2 entry:
   // n_alpha x n_beta node luminances, n_alpha beta-integrals, 1 mean node luminance.
