@@ -9,7 +9,9 @@
 #include "bench/bench_common.h"
 #include "pipeline/btfbase.h"
 #include "pipeline/decoder.h"
+#include "pipeline/image.h"
 #include "pipeline/opencl_runtime.h"
+#include "pipeline/preview.h"
 #include "pipeline/renderer_api.h"
 
 using namespace btfvq;
@@ -84,9 +86,16 @@ int main(int argc, char** argv) {
         "view. Batch: Decoder::decode on " << ComputeDevice::get().description() << " (wall time, every core).\n\n"
      << "| material | eval random | eval coherent | sample random | sample coherent | pdf random | albedo (k/s) | batch decode |\n"
      << "|---|---|---|---|---|---|---|---|\n";
+  std::ostringstream pictures;
   for (const char* name : {"alu", "proposte"}) {
     const BtfDatabase db = BtfDatabase::from_memory(import_btfbase((args.testdata / "btfbase" / name).string()));
     const Rates r = measure(db, name, n);
+    // What `btfvq render DB --material NAME --scene sphere --light 45,135` writes, for a person to check.
+    PreviewOptions preview;
+    const std::string file = std::string(name) + "_sphere_l45-135.png";
+    write_rgb8_image((args.figures / file).string(), preview.size, preview.size,
+                     render_preview(db.decoder(), db.material(name).index(), preview));
+    pictures << "![" << name << " on a sphere, light 45,135](bench/results/" << file << ")\n";
     char row[512];
     std::snprintf(row, sizeof row, "| %s | %.2f | %.2f | %.2f | %.2f | %.2f | %.1f | %.2f |\n", name, r.eval_random / 1e6,
                   r.eval_coherent / 1e6, r.sample_random / 1e6, r.sample_coherent / 1e6, r.pdf / 1e6, r.albedo / 1e3,
@@ -100,6 +109,8 @@ int main(int argc, char** argv) {
   md << "\nPaper (Sec. 6, one core of a 2.83 GHz Xeon): 0.31-1.36 M evaluations/s and 0.45-1.6 M samples/s. "
         "Sampling reads four precomputed P2 luminance tables per query (docs/sampling.md); albedo is a 3 x 3 "
         "Gauss-Legendre rule per onion cell (900 evaluations).\n";
+  md << "\n" << pictures.str() << "\nPreviews (pipeline/preview.h) of the original compressor's databases on a sphere under one "
+        "directional light, decoded by the batch decode.\n";
   bench::write_section(args, "Renderer API: evaluation and importance sampling", 45, md.str(), figures);
   return 0;
 }
