@@ -177,14 +177,17 @@ LightSample LightSampler::sample(size_t material, int x, int y, const Vec3& view
     return {l, kUniformPdf};
   }
   const size_t na = size_t(na_), nb = size_t(nb_);
-  std::vector<double>& buf = scratch(na + nb);
-  double* r = buf.data();       // marginal density over alpha at the nodes (integral over s)
+  std::vector<double>& buf = scratch(2 * na + nb);
+  double* lum = buf.data();     // integral over s of the luminance at the alpha nodes
+  double* r = lum + na;         // marginal density over alpha at the nodes (integral over s of f)
   double* gcol = r + na;        // conditional density over s at the sampled alpha
-  for (size_t a = 0; a < na; ++a) r[a] = 2.0 * mx.floor;
+  for (size_t a = 0; a < na; ++a) lum[a] = 0;
   for (int i = 0; i < mx.n; ++i) {
     const float* ri = rows(mx.p2[i], mx.hdr);
-    for (size_t a = 0; a < na; ++a) r[a] += mx.w[i] * double(ri[a]);
+    for (size_t a = 0; a < na; ++a) lum[a] += mx.w[i] * double(ri[a]);
   }
+  // f = luminance + floor + column floor (kSamplingColumnFloor x the column's mean over s, length 2).
+  for (size_t a = 0; a < na; ++a) r[a] = (1.0 + kSamplingColumnFloor) * lum[a] + 2.0 * mx.floor;
   double z = 0;
   for (size_t a = 0; a + 1 < na; ++a) z += 0.5 * d_alpha_ * (r[a] + r[a + 1]);
 
@@ -199,7 +202,8 @@ LightSample LightSampler::sample(size_t material, int x, int y, const Vec3& view
   const double ta = invert_linear_cell(r[ka], r[ka + 1], d_alpha_, target - cum);
 
   // beta (as s = sin beta): the density along s at this alpha, linear between the alpha nodes.
-  for (size_t b = 0; b < nb; ++b) gcol[b] = mx.floor;
+  const double column_floor = 0.5 * kSamplingColumnFloor * ((1.0 - ta) * lum[ka] + ta * lum[ka + 1]);
+  for (size_t b = 0; b < nb; ++b) gcol[b] = mx.floor + column_floor;
   for (int i = 0; i < mx.n; ++i) {
     const float* n0 = nodes(mx.p2[i], mx.hdr) + ka * nb;
     const float* n1 = n0 + nb;
@@ -245,17 +249,19 @@ double LightSampler::pdf(size_t material, int x, int y, const Vec3& light, const
   const double ta = std::clamp((alpha + 0.5 * kPi) / d_alpha_ - ka, 0.0, 1.0);
   const double tb = std::clamp((s + 1.0) / d_s_ - kb, 0.0, 1.0);
   const size_t na = size_t(na_), nb = size_t(nb_);
-  double f = mx.floor, z = 0;
+  double f = mx.floor, z = 0, column = 0;
   for (int i = 0; i < mx.n; ++i) {
     const float* n0 = nodes(mx.p2[i], mx.hdr) + size_t(ka) * nb + size_t(kb);
     const float* n1 = n0 + nb;
     f += mx.w[i] * ((1.0 - ta) * ((1.0 - tb) * n0[0] + tb * n0[1]) + ta * ((1.0 - tb) * n1[0] + tb * n1[1]));
     const float* ri = rows(mx.p2[i], mx.hdr);
+    column += mx.w[i] * ((1.0 - ta) * double(ri[ka]) + ta * double(ri[ka + 1]));
     double zi = 0;
     for (size_t a = 0; a + 1 < na; ++a) zi += 0.5 * (double(ri[a]) + double(ri[a + 1]));
     z += mx.w[i] * zi * d_alpha_;
   }
-  z += 2.0 * mx.floor * kPi;  // the floor over the whole (alpha, s) square, area 2 pi
+  f += 0.5 * kSamplingColumnFloor * column;
+  z = (1.0 + kSamplingColumnFloor) * z + 2.0 * mx.floor * kPi;  // the floor over the (alpha, s) square, area 2 pi
   return f / z;
 }
 

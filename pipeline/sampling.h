@@ -8,8 +8,9 @@
 // beta nodes are uniform in s. The sampled density is the bilinear interpolation over that uniform
 // (alpha, s) grid of the node luminances of the texel for the view (the decoder's P4/P3 blend over
 // phi_v and theta_v, the luminance of each M entry's RGB), plus a floor of kSamplingFloor x their
-// mean, normalised over the hemisphere. At every grid node the pdf is therefore proportional to the
-// luminance the decoder evaluates there (+ the floor); between nodes it is the bilinear blend of
+// mean and kSamplingColumnFloor x the mean of the node's alpha column, normalised over the
+// hemisphere. At every grid node the pdf is therefore proportional to the luminance the decoder
+// evaluates there (+ the floors); between nodes it is the bilinear blend of
 // the same values. Because the density is positive everywhere and its CDFs are continuous and
 // strictly increasing, nearby (xi1, xi2) give nearby directions (the continuity property of Sec. 5.2).
 //
@@ -27,6 +28,10 @@ namespace btfvq {
 // The floor added to every node of the sampling density, relative to the mean node luminance: keeps
 // the density positive (continuity; no direction with reflectance is ever unsampleable).
 inline constexpr double kSamplingFloor = 0.01;
+// A second floor per alpha column, relative to that column's mean luminance over s: bounds how
+// steep the conditional inverse CDF can get beside a bright peak (high dynamic range), so that
+// sampling stays continuous with a moderate slope everywhere.
+inline constexpr double kSamplingColumnFloor = 0.01;
 
 struct LightSample {
   Vec3 direction;   // unit vector, z >= 0

@@ -48,6 +48,21 @@ const BtfDatabase& wood() {
   return db;
 }
 
+// An HDR material (LogLuv coding space: the sampled luminance is the linear one).
+const BtfDatabase& hdr_leather() {
+  static const BtfDatabase db = [] {
+    SynthOptions o;
+    o.preset = "leather";
+    o.size = 8;
+    o.seed = 5;
+    o.dynamic = Dynamic::HDR;
+    Database d;
+    compress_material(d, synthesize(o), "leather_hdr", {});
+    return BtfDatabase::from_memory(std::move(d));
+  }();
+  return db;
+}
+
 struct Case {
   const BtfDatabase* db;
   const char* material;
@@ -55,7 +70,10 @@ struct Case {
 };
 
 std::vector<Case> cases() {
-  return {{&alu(), "alu", 0.3, 0.6}, {&proposte(), "proposte", 0.52, 0.17}, {&wood(), "wood", 0.7, 0.4}};
+  return {{&alu(), "alu", 0.3, 0.6},
+          {&proposte(), "proposte", 0.52, 0.17},
+          {&wood(), "wood", 0.7, 0.4},
+          {&hdr_leather(), "leather_hdr", 0.45, 0.8}};
 }
 
 const Direction kViews[] = {{0, 0}, {37, 71}, {66, 203}};
@@ -94,7 +112,8 @@ TEST_CASE("sampled directions follow the returned pdf (chi-square), and the samp
   for (const Case& c : cases()) {
     const BtfMaterial mat = c.db->material(c.material);
     for (const Direction& vd : kViews) {
-      CAPTURE(c.material);
+      const std::string material = c.material;
+      CAPTURE(material);
       CAPTURE(vd.theta);
       const Vec3 view = to_vector(vd);
       // Bins: 20 x 20 in (alpha, sin beta) of the view's onion frame; d omega = d alpha d(sin beta),
@@ -156,7 +175,8 @@ TEST_CASE("the pdf integrates to 1 over the hemisphere and is 0 below it") {
   for (const Case& c : cases()) {
     const BtfMaterial mat = c.db->material(c.material);
     for (const Direction& vd : kViews) {
-      CAPTURE(c.material);
+      const std::string material = c.material;
+      CAPTURE(material);
       CAPTURE(vd.theta);
       const Vec3 view = to_vector(vd);
       const double integral = integrate_hemisphere(300, 600, [&](const Vec3& l) { return mat.pdf(c.u, c.v, l, view); });
@@ -166,17 +186,20 @@ TEST_CASE("the pdf integrates to 1 over the hemisphere and is 0 below it") {
   }
 }
 
-TEST_CASE("the pdf follows the evaluated luminance: at every interior grid node pdf = (luminance + floor) / Z") {
+TEST_CASE("the pdf follows the evaluated luminance: at every interior grid node pdf = (luminance + floors) / Z") {
   for (const Case& c : cases()) {
     const BtfMaterial mat = c.db->material(c.material);
     const AngularGrid& g = c.db->database().codebooks.grid;
     for (const Direction& vd : kViews) {
-      CAPTURE(c.material);
+      const std::string material = c.material;
+      CAPTURE(material);
       CAPTURE(vd.theta);
       const Vec3 view = to_vector(vd);
-      // The floor is kSamplingFloor x the mean luminance over all nodes (boundary ones included,
-      // evaluated just inside the horizon where the decoder still reads the node).
-      std::vector<double> lum, pdf;
+      // The floors: kSamplingFloor x the mean luminance over all nodes, and kSamplingColumnFloor x
+      // the mean over s (trapezoid) of the node's alpha column. Boundary nodes are evaluated just
+      // inside the horizon, where the decoder still reads the node.
+      std::vector<double> lum, pdf, column_mean(size_t(g.n_alpha), 0.0);
+      std::vector<int> column_of;
       double mean = 0;
       for (int a = 0; a < g.n_alpha; ++a)
         for (int b = 0; b < g.n_beta; ++b) {
@@ -185,14 +208,17 @@ TEST_CASE("the pdf follows the evaluated luminance: at every interior grid node 
           const Direction l = from_onion({alpha, beta}, vd.phi);
           const double y = sampling_luminance(mat.evaluate(c.u, c.v, l, vd), mat.hdr());
           mean += y / (g.n_alpha * g.n_beta);
+          column_mean[size_t(a)] += y * ((b == 0 || b == g.n_beta - 1) ? 0.5 : 1.0) / (g.n_beta - 1);
           if (a == 0 || b == 0 || a == g.n_alpha - 1 || b == g.n_beta - 1) continue;
           lum.push_back(y);
+          column_of.push_back(a);
           pdf.push_back(mat.pdf(c.u, c.v, to_vector(l), view));
         }
       REQUIRE(mean > 0);
       double lo = 1e300, hi = 0;
       for (size_t i = 0; i < lum.size(); ++i) {
-        const double ratio = pdf[i] / (lum[i] + kSamplingFloor * mean);
+        const double ratio =
+            pdf[i] / (lum[i] + kSamplingFloor * mean + kSamplingColumnFloor * column_mean[size_t(column_of[i])]);
         lo = std::min(lo, ratio);
         hi = std::max(hi, ratio);
       }
@@ -207,13 +233,16 @@ TEST_CASE("continuity (Sec. 5.2): nearby (xi1, xi2) give nearby directions over 
   for (const Case& c : cases()) {
     const BtfMaterial mat = c.db->material(c.material);
     for (const Direction& vd : kViews) {
-      CAPTURE(c.material);
+      const std::string material = c.material;
+      CAPTURE(material);
       CAPTURE(vd.theta);
       const Vec3 view = to_vector(vd);
       // Over a 101 x 101 grid of pairs (edges included), the largest angle between the directions of
       // neighbours at distance d; a jump anywhere would keep it from shrinking with d. Near the poles
       // A and B (sin beta = +-1) the angle to the pole is ~ sqrt(2 (1 - sin beta)), so it shrinks
-      // like sqrt(d) there (d / 100 -> angle / 10), linearly elsewhere.
+      // like sqrt(d) there (d / 100 -> angle / 10), linearly elsewhere. (Beside a very bright
+      // column of an HDR material the slope is steep -- the region of (xi1, xi2) that maps to the
+      // dark column is small -- so the checks use small d.)
       auto worst = [&](double d) {
         double w = 0;
         for (int i = 0; i <= 100; ++i)
@@ -225,11 +254,11 @@ TEST_CASE("continuity (Sec. 5.2): nearby (xi1, xi2) give nearby directions over 
           }
         return w;
       };
-      const double w3 = worst(1e-3), w5 = worst(1e-5);
-      CAPTURE(w3);
-      CAPTURE(w5);
-      CHECK(w3 < 0.25);
-      CHECK(w5 < w3 / 5);
+      const double w6 = worst(1e-6), w8 = worst(1e-8);
+      CAPTURE(w6);
+      CAPTURE(w8);
+      CHECK(w6 < 0.05);
+      CHECK(w8 < w6 / 5);
     }
   }
 }
@@ -238,7 +267,8 @@ TEST_CASE("albedo matches a brute-force integration of the evaluated reflectance
   for (const Case& c : cases()) {
     const BtfMaterial mat = c.db->material(c.material);
     for (const Direction& vd : {kViews[0], kViews[2]}) {
-      CAPTURE(c.material);
+      const std::string material = c.material;
+      CAPTURE(material);
       CAPTURE(vd.theta);
       const Vec3 view = to_vector(vd);
       const Rgb a = mat.albedo(c.u, c.v, view);
