@@ -28,13 +28,6 @@ double invert_linear_cell(double d0, double d1, double h, double mass) {
   return std::clamp(2.0 * u / den, 0.0, 1.0);
 }
 
-// Scratch for one call, allocated once per thread.
-std::vector<double>& scratch(size_t n) {
-  thread_local std::vector<double> v;
-  if (v.size() < n) v.resize(n);
-  return v;
-}
-
 }  // namespace
 
 double sampling_luminance(const Rgb& c, bool hdr) {
@@ -61,14 +54,6 @@ LightSampler::LightSampler(const Decoder& decoder) : decoder_(decoder) {
   nb_ = k.grid.n_beta;
   nt_ = k.grid.n_theta_v;
   np_ = k.grid.n_phi_v;
-  view_nodes_.resize(k.p4_index.rows() * size_t(np_) * size_t(nt_));
-  for (size_t p4 = 0; p4 < k.p4_index.rows(); ++p4)
-    for (int p = 0; p < np_; ++p) {
-      const uint32_t p3 = k.p4_index.at(p4, size_t(p));
-      for (int t = 0; t < nt_; ++t)
-        view_nodes_[(p4 * size_t(np_) + size_t(p)) * size_t(nt_) + size_t(t)] = {
-            k.m.at(k.p3_index.at(p3, size_t(t)), 0), k.p4_scale.at(p4, size_t(p)) * k.p3_scale.at(p3, size_t(t))};
-    }
   d_alpha_ = kPi / (na_ - 1);
   d_s_ = 2.0 / (nb_ - 1);
   bool used[2] = {false, false};
@@ -79,6 +64,7 @@ LightSampler::LightSampler(const Decoder& decoder) : decoder_(decoder) {
     node_lum_[h].resize(n_p2 * cells);
     row_int_[h].resize(n_p2 * size_t(na_));
     mean_lum_[h].resize(n_p2);
+    total_[h].resize(n_p2);
     for (size_t p2 = 0; p2 < n_p2; ++p2) {
       float* nodes = node_lum_[h].data() + p2 * cells;
       double total = 0;
@@ -97,8 +83,20 @@ LightSampler::LightSampler(const Decoder& decoder) : decoder_(decoder) {
         row_int_[h][p2 * size_t(na_) + size_t(a)] = float(row * d_s_);
       }
       mean_lum_[h][p2] = float(total / double(cells));
+      const float* r = row_int_[h].data() + p2 * size_t(na_);
+      double area = 0;
+      for (int a = 0; a + 1 < na_; ++a) area += 0.5 * d_alpha_ * (double(r[a]) + double(r[a + 1]));
+      total_[h][p2] = area;
     }
   }
+  view_nodes_.resize(k.p4_index.rows() * size_t(np_) * size_t(nt_));
+  for (size_t p4 = 0; p4 < k.p4_index.rows(); ++p4)
+    for (int p = 0; p < np_; ++p) {
+      const uint32_t p3 = k.p4_index.at(p4, size_t(p));
+      for (int t = 0; t < nt_; ++t)
+        view_nodes_[(p4 * size_t(np_) + size_t(p)) * size_t(nt_) + size_t(t)] = {
+            k.m.at(k.p3_index.at(p3, size_t(t)), 0), k.p4_scale.at(p4, size_t(p)) * k.p3_scale.at(p3, size_t(t))};
+    }
 }
 
 const float* LightSampler::nodes(uint32_t p2, bool hdr) const {
@@ -126,7 +124,7 @@ LightSampler::Mixture LightSampler::mixture(size_t material, int x, int y, const
   if (mat.width <= 0 || mat.height <= 0) return mx;
   const size_t texel = size_t(wrap(y, mat.height)) * size_t(mat.width) + size_t(wrap(x, mat.width));
   const int32_t p4_row = mat.p6_index[texel];
-  if (p4_row < 0 || !(mat.p6_scale[texel] > 0)) return mx;
+  if (p4_row < 0) return mx;  // (the P6 scale only scales the reflectance; the density ignores it)
   mx.hdr = mat.dynamic == Dynamic::HDR;
 
   // The decoder's view blend (FORMAT.md step 6): P4 over phi_v, P3 over theta_v, with their scales.
@@ -165,6 +163,13 @@ LightSampler::Mixture LightSampler::mixture(size_t material, int x, int y, const
   return mx;
 }
 
+double LightSampler::normaliser(const Mixture& mx) const {
+  // Z = integral of f over the (alpha, s) square: luminance x (1 + column floor) + floor x area 2 pi.
+  double z = 0;
+  for (int i = 0; i < mx.n; ++i) z += mx.w[i] * total_[mx.hdr ? 1 : 0][mx.p2[i]];
+  return (1.0 + kSamplingColumnFloor) * z + 2.0 * kPi * mx.floor;
+}
+
 LightSample LightSampler::sample(size_t material, int x, int y, const Vec3& view, double xi1, double xi2) const {
   const Mixture mx = mixture(material, x, y, view);
   xi1 = std::isfinite(xi1) ? std::clamp(xi1, 0.0, 1.0) : 0.0;
@@ -177,8 +182,15 @@ LightSample LightSampler::sample(size_t material, int x, int y, const Vec3& view
     return {l, kUniformPdf};
   }
   const size_t na = size_t(na_), nb = size_t(nb_);
-  std::vector<double>& buf = scratch(2 * na + nb);
-  double* lum = buf.data();     // integral over s of the luminance at the alpha nodes
+  // Stack scratch for the usual grids; a larger grid pays one allocation per call.
+  double stack[192];
+  std::vector<double> heap;
+  double* buf = stack;
+  if (2 * na + nb > 192) {
+    heap.resize(2 * na + nb);
+    buf = heap.data();
+  }
+  double* lum = buf;     // integral over s of the luminance at the alpha nodes
   double* r = lum + na;         // marginal density over alpha at the nodes (integral over s of f)
   double* gcol = r + na;        // conditional density over s at the sampled alpha
   for (size_t a = 0; a < na; ++a) lum[a] = 0;
@@ -188,8 +200,7 @@ LightSample LightSampler::sample(size_t material, int x, int y, const Vec3& view
   }
   // f = luminance + floor + column floor (kSamplingColumnFloor x the column's mean over s, length 2).
   for (size_t a = 0; a < na; ++a) r[a] = (1.0 + kSamplingColumnFloor) * lum[a] + 2.0 * mx.floor;
-  double z = 0;
-  for (size_t a = 0; a + 1 < na; ++a) z += 0.5 * d_alpha_ * (r[a] + r[a + 1]);
+  const double z = normaliser(mx);
 
   // alpha: the cell by the marginal CDF, then the position inside it.
   double target = xi1 * z, cum = 0;
@@ -248,21 +259,17 @@ double LightSampler::pdf(size_t material, int x, int y, const Vec3& light, const
   const int kb = std::clamp(int(std::floor((s + 1.0) / d_s_)), 0, nb_ - 2);
   const double ta = std::clamp((alpha + 0.5 * kPi) / d_alpha_ - ka, 0.0, 1.0);
   const double tb = std::clamp((s + 1.0) / d_s_ - kb, 0.0, 1.0);
-  const size_t na = size_t(na_), nb = size_t(nb_);
-  double f = mx.floor, z = 0, column = 0;
+  const size_t nb = size_t(nb_);
+  double f = mx.floor, column = 0;
   for (int i = 0; i < mx.n; ++i) {
     const float* n0 = nodes(mx.p2[i], mx.hdr) + size_t(ka) * nb + size_t(kb);
     const float* n1 = n0 + nb;
     f += mx.w[i] * ((1.0 - ta) * ((1.0 - tb) * n0[0] + tb * n0[1]) + ta * ((1.0 - tb) * n1[0] + tb * n1[1]));
     const float* ri = rows(mx.p2[i], mx.hdr);
     column += mx.w[i] * ((1.0 - ta) * double(ri[ka]) + ta * double(ri[ka + 1]));
-    double zi = 0;
-    for (size_t a = 0; a + 1 < na; ++a) zi += 0.5 * (double(ri[a]) + double(ri[a + 1]));
-    z += mx.w[i] * zi * d_alpha_;
   }
   f += 0.5 * kSamplingColumnFloor * column;
-  z = (1.0 + kSamplingColumnFloor) * z + 2.0 * mx.floor * kPi;  // the floor over the (alpha, s) square, area 2 pi
-  return f / z;
+  return f / normaliser(mx);
 }
 
 }  // namespace btfvq

@@ -63,6 +63,7 @@ class LightSampler {
  private:
   struct Mixture;  // the up to four weighted P2 entries of one (texel, view)
   Mixture mixture(size_t material, int x, int y, const Vec3& view) const;
+  double normaliser(const Mixture& mx) const;
   const float* nodes(uint32_t p2, bool hdr) const;
   const float* rows(uint32_t p2, bool hdr) const;
 
@@ -77,10 +78,11 @@ class LightSampler {
   std::vector<ViewNode> view_nodes_;
   double d_alpha_, d_s_;  // grid steps in radians and in sin(beta)
   // Per dynamic range (0 LDR, 1 HDR; built only if a material uses it), per P2 entry:
-  // n_alpha x n_beta node luminances, n_alpha beta-integrals, 1 mean node luminance.
+  // n_alpha x n_beta node luminances, n_alpha beta-integrals, the mean node luminance, the total.
   std::vector<float> node_lum_[2];
   std::vector<float> row_int_[2];
   std::vector<float> mean_lum_[2];
+  std::vector<double> total_[2];  // integral of the node luminance over the (alpha, s) square
 };
 
 }  // namespace btfvq
