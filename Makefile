@@ -5,6 +5,7 @@ BUILD      ?= build
 BUILD_REL  ?= build-release
 JOBS       ?= $(shell nproc)
 BENCH_ARGS ?=
+PREFIX     ?= /usr/local
 DEB_PACKAGES = build-essential cmake pkg-config \
   pocl-opencl-icd opencl-c-headers opencl-clhpp-headers ocl-icd-opencl-dev clinfo \
   libopenimageio-dev libspdlog-dev nlohmann-json3-dev libcpp-httplib-dev doctest-dev \
@@ -35,7 +36,7 @@ bench: build-release
 	@bash bench/run.sh $(BUILD_REL)/bin $(BENCH_ARGS)
 
 install: build-release
-	cmake --install $(BUILD_REL)
+	cmake --install $(BUILD_REL) --prefix $(PREFIX)
 
 clean:
 	rm -rf $(BUILD) $(BUILD_REL)

@@ -1,4 +1,5 @@
-// `btfvq render`: the decoded image of one material for one (light, view) direction pair.
+// `btfvq render`: the decoded image of one material for one (light, view) direction pair, or with
+// --scene a preview of the material on a sphere or a plane under a light or a few (--env).
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -6,19 +7,52 @@
 
 #include "client/cli.h"
 #include "pipeline/database.h"
+#include "pipeline/decoder.h"
 #include "pipeline/image.h"
+#include "pipeline/preview.h"
 #include "pipeline/reconstruct.h"
 
 namespace btfvq::cli {
 namespace {
 
+// The light of a preview: "T,P" in the camera frame (theta may exceed 90: light from behind).
+Direction parse_preview_light(const std::string& text) {
+  const auto comma = text.find(',');
+  try {
+    if (comma != std::string::npos) return {std::stod(text.substr(0, comma)), std::stod(text.substr(comma + 1))};
+  } catch (const std::exception&) {
+  }
+  throw InputError("--light: '" + text + "' is not THETA,PHI in degrees");
+}
+
+int run_preview(const Args& a, const Database& db, const Material& mat) {
+  PreviewOptions o;
+  o.scene = parse_preview_scene(a.require("scene"));
+  o.size = a.integer("size", 256, 16, 2048);
+  if (a.has("env")) o.lights = preview_environment();
+  else if (a.has("light")) o.lights = {{parse_preview_light(a.require("light")), 1.0}};
+  if (a.has("tiles")) {
+    try {
+      o.tiles = std::stod(a.require("tiles"));
+    } catch (const std::exception&) {
+      throw InputError("--tiles: '" + a.require("tiles") + "' is not a number");
+    }
+  }
+  const Decoder decoder(db);
+  const size_t index = size_t(&mat - db.materials.data());
+  write_rgb8_image(a.require("out"), o.size, o.size, render_preview(decoder, index, o));
+  std::cout << "wrote " << a.require("out") << "\n";
+  return 0;
+}
+
 int run_render(const Args& a) {
   if (a.positional.size() != 1)
-    throw InputError("usage: btfvq render DB --material NAME --light T,P --view T,P --out x.png");
+    throw InputError("usage: btfvq render DB --material NAME (--light T,P --view T,P | --scene sphere|plane [--light T,P | --env]) --out x.png");
   const Database db = read_database(a.positional[0]);
   const std::string name = a.require("material");
   const Material* mat = db.find(name);
   if (!mat) throw NotFoundError("no material '" + name + "' in " + a.positional[0]);
+  if (a.has("scene")) return run_preview(a, db, *mat);
   const Direction light = parse_direction(a.require("light"), "light");
   const Direction view = parse_direction(a.require("view"), "view");
   auto rgb = decode_image(db, name, light, view);
@@ -39,9 +73,11 @@ int run_render(const Args& a) {
   return 0;
 }
 
-CommandRegistrar reg({"render", "render DB --material NAME --light T,P --view T,P --out x.png [--texel X,Y]",
-                      "write the decoded image of a material for one light and view direction",
-                      {"material", "light", "view", "out", "texel"}, {}, run_render});
+CommandRegistrar reg({"render",
+                      "render DB --material NAME --light T,P --view T,P --out x.png [--texel X,Y] | "
+                      "render DB --material NAME --scene sphere|plane [--light T,P | --env] [--size N] [--tiles K] --out x.png",
+                      "write the decoded image of a material for one light and view direction, or a preview on a sphere/plane",
+                      {"material", "light", "view", "out", "texel", "scene", "size", "tiles"}, {"env"}, run_render});
 
 }  // namespace
 }  // namespace btfvq::cli

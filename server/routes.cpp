@@ -89,6 +89,32 @@ bool range_unsatisfiable(const httplib::Request& req, uint64_t size) {
   return last == 0 || size == 0;  // suffix range "-N"
 }
 
+// Query of a preview: scene=sphere|plane, light=T,P (camera frame, degrees), env=1, size=N.
+PreviewOptions preview_query(const httplib::Request& req) {
+  PreviewOptions o;
+  if (req.has_param("scene")) o.scene = parse_preview_scene(req.get_param_value("scene"));
+  auto number = [&](const char* key, const std::string& text) {
+    size_t used = 0;
+    double v = 0;
+    try {
+      v = std::stod(text, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (used == 0 || used != text.size()) throw InputError(std::string(key) + ": '" + text + "' is not a number");
+    return v;
+  };
+  if (req.has_param("size")) o.size = int(std::clamp(number("size", req.get_param_value("size")), -1.0, 1e6));
+  if (req.has_param("light")) {
+    const std::string l = req.get_param_value("light");
+    const auto comma = l.find(',');
+    if (comma == std::string::npos) throw InputError("light: '" + l + "' is not THETA,PHI in degrees");
+    o.lights = {{{number("light", l.substr(0, comma)), number("light", l.substr(comma + 1))}, 1.0}};
+  }
+  if (req.has_param("env") && req.get_param_value("env") != "0") o.lights = preview_environment();
+  return o;
+}
+
 std::string sse_event(const std::string& event, const json& data) {
   return "event: " + event + "\ndata: " + data.dump() + "\n\n";
 }
@@ -249,6 +275,10 @@ void HttpServer::install_routes() {
   });
   s.Get(R"(/v1/databases/([^/]+))", [&svc](const httplib::Request& req, httplib::Response& res) {
     send_json(res, svc.database(req.matches[1]));
+  });
+  s.Get(R"(/v1/databases/([^/]+)/materials/([^/]+)/preview\.png)", [&svc](const httplib::Request& req, httplib::Response& res) {
+    const auto png = svc.preview(req.matches[1], req.matches[2], preview_query(req));
+    res.set_content(std::string(png.begin(), png.end()), "image/png");
   });
   s.Get(R"(/v1/databases/([^/]+)/content)", [&svc](const httplib::Request& req, httplib::Response& res) {
     std::optional<int64_t> version;

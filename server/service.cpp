@@ -555,6 +555,25 @@ ContentInfo Service::content(const std::string& name, std::optional<int64_t> ver
   return {name, v->version, config_.data_dir / v->path, v->size, v->sha256};
 }
 
+std::vector<uint8_t> Service::preview(const std::string& database, const std::string& material,
+                                      const PreviewOptions& options) {
+  const ContentInfo c = content(database, std::nullopt);
+  std::shared_ptr<const BtfDatabase> db;
+  {
+    std::lock_guard lock(preview_mutex_);
+    auto it = preview_cache_.find(c.path);
+    if (it != preview_cache_.end()) db = it->second;
+  }
+  if (!db) {
+    db = std::make_shared<const BtfDatabase>(BtfDatabase::open(c.path.string()));
+    std::lock_guard lock(preview_mutex_);
+    if (preview_cache_.size() >= 4) preview_cache_.clear();
+    preview_cache_[c.path] = db;
+  }
+  const BtfMaterial m = db->material(material);
+  return render_preview_png(db->decoder(), m.index(), options);
+}
+
 std::string Service::metrics() {
   std::map<std::string, int> by_state{{"queued", 0}, {"running", 0}, {"succeeded", 0}, {"failed", 0}, {"cancelled", 0}};
   for (const auto& j : store_->jobs()) ++by_state[j.state];

@@ -23,6 +23,8 @@
 #include <thread>
 #include <vector>
 
+#include "pipeline/preview.h"
+#include "pipeline/renderer_api.h"
 #include "pipeline/sha256.h"
 #include "server/executor.h"
 #include "server/store.h"
@@ -104,6 +106,8 @@ class Service {
   nlohmann::json databases();
   nlohmann::json database(const std::string& name);
   ContentInfo content(const std::string& name, std::optional<int64_t> version);
+  // PNG preview (pipeline/preview.h) of a material of the latest version of a database.
+  std::vector<uint8_t> preview(const std::string& database, const std::string& material, const PreviewOptions& options);
 
   void count_bytes_served(uint64_t n) { bytes_served_ += n; }
   std::string metrics();
@@ -151,6 +155,9 @@ class Service {
   std::atomic<uint64_t> bytes_served_{0}, bytes_uploaded_{0};
   std::map<std::string, double> stage_seconds_;
   std::map<std::string, uint64_t> jobs_finished_;
+  // Opened databases for previews, by file (a published version never changes); a few at most.
+  std::mutex preview_mutex_;
+  std::map<std::filesystem::path, std::shared_ptr<const BtfDatabase>> preview_cache_;
 };
 
 }  // namespace btfvq::server

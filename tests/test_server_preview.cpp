@@ -1,0 +1,133 @@
+// The real `btfvq-server` binary serves a PNG preview of a material it compressed:
+// GET /v1/databases/{db}/materials/{name}/preview.png (docs/api.md).
+#include <doctest/doctest.h>
+#include <httplib.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <OpenImageIO/filesystem.h>
+#include <OpenImageIO/imageio.h>
+
+#include <chrono>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <thread>
+
+#include "support/test_paths.h"
+
+using namespace btfvq::test;
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace {
+
+// The server binary on a free port over a scratch data directory; SIGTERM on scope exit.
+class ServerProcess {
+ public:
+  explicit ServerProcess(const fs::path& data) : port_(free_loopback_port()) {
+    const std::string server = (bin_dir() / "btfvq-server").string();
+    const std::string listen = "127.0.0.1:" + std::to_string(port_), dir = data.string();
+    const std::string log = data.string() + ".log";
+    pid_ = ::fork();
+    REQUIRE(pid_ >= 0);
+    if (pid_ == 0) {
+      if (FILE* f = std::freopen(log.c_str(), "a", stderr)) (void)f;
+      ::execl(server.c_str(), server.c_str(), "--listen", listen.c_str(), "--data", dir.c_str(), "--workers", "1",
+              static_cast<char*>(nullptr));
+      ::_exit(127);
+    }
+    httplib::Client c(url());
+    for (int i = 0; i < 1000; ++i) {
+      auto r = c.Get("/healthz");
+      if (r && r->status == 200) return;
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    FAIL("btfvq-server did not answer /healthz");
+  }
+  ~ServerProcess() {
+    ::kill(pid_, SIGTERM);
+    int status = 0;
+    ::waitpid(pid_, &status, 0);
+  }
+  std::string url() const { return "http://127.0.0.1:" + std::to_string(port_); }
+
+ private:
+  int port_;
+  pid_t pid_ = -1;
+};
+
+struct Image {
+  int width = 0, height = 0, channels = 0;
+  std::vector<unsigned char> pixels;
+  const unsigned char* at(int x, int y) const { return &pixels[(size_t(y) * size_t(width) + size_t(x)) * size_t(channels)]; }
+};
+
+Image decode_png(const std::string& bytes) {
+  std::vector<unsigned char> data(bytes.begin(), bytes.end());
+  OIIO::Filesystem::IOMemReader proxy(data.data(), data.size());
+  auto in = OIIO::ImageInput::open("preview.png", nullptr, &proxy);
+  REQUIRE(in);
+  Image im;
+  im.width = in->spec().width;
+  im.height = in->spec().height;
+  im.channels = in->spec().nchannels;
+  im.pixels.resize(size_t(im.width) * size_t(im.height) * size_t(im.channels));
+  REQUIRE(in->read_image(0, 0, 0, im.channels, OIIO::TypeDesc::UINT8, im.pixels.data()));
+  return im;
+}
+
+}  // namespace
+
+TEST_CASE("GET .../materials/{name}/preview.png: the material on a sphere, lit, on a dark background") {
+  const fs::path dir = scratch_dir("server-preview");
+  ServerProcess server(dir / "data");
+  httplib::Client c(server.url());
+  c.set_read_timeout(60);
+  const json job = {{"database", "shop"},
+                    {"materials", json::array({{{"name", "wood8"},
+                                                {"source", {{"synthetic", {{"preset", "wood"}, {"size", 8}, {"seed", 1}}}}}}})}};
+  auto submitted = c.Post("/v1/jobs", job.dump(), "application/json");
+  REQUIRE(submitted);
+  REQUIRE(submitted->status == 202);
+  const std::string id = json::parse(submitted->body)["id"];
+  std::string state;
+  for (int i = 0; i < 1200 && state != "succeeded" && state != "failed"; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    auto r = c.Get(("/v1/jobs/" + id).c_str());
+    REQUIRE(r);
+    state = json::parse(r->body)["state"];
+  }
+  REQUIRE(state == "succeeded");
+
+  auto r = c.Get("/v1/databases/shop/materials/wood8/preview.png?size=96&light=30,135");
+  REQUIRE(r);
+  REQUIRE(r->status == 200);
+  CHECK(r->get_header_value("Content-Type") == "image/png");
+  const Image im = decode_png(r->body);
+  REQUIRE(im.width == 96);
+  REQUIRE(im.height == 96);
+  REQUIRE(im.channels == 3);
+  CHECK(im.at(0, 0)[1] == 40);  // background outside the sphere
+  CHECK(im.at(95, 95)[1] == 40);
+  // The lit side (up-left, facing the light) is brighter than the side turned away from it.
+  const int lit = im.at(36, 36)[1], dark = im.at(80, 74)[1];
+  CHECK(lit > 60);
+  CHECK(lit > dark + 20);
+
+  auto env = c.Get("/v1/databases/shop/materials/wood8/preview.png?size=64&env=1&scene=plane");
+  REQUIRE(env);
+  CHECK(env->status == 200);
+  CHECK(decode_png(env->body).width == 64);
+
+  auto missing = c.Get("/v1/databases/shop/materials/nope/preview.png");
+  REQUIRE(missing);
+  CHECK(missing->status == 404);
+  CHECK(json::parse(missing->body)["error"]["message"].get<std::string>().find("nope") != std::string::npos);
+  auto bad = c.Get("/v1/databases/shop/materials/wood8/preview.png?scene=cube");
+  REQUIRE(bad);
+  CHECK(bad->status == 400);
+  auto no_db = c.Get("/v1/databases/none/materials/wood8/preview.png");
+  REQUIRE(no_db);
+  CHECK(no_db->status == 404);
+}
