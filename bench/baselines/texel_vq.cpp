@@ -122,6 +122,32 @@ Rgb evaluate_resampled(const float* tx, const AngularGrid& grid, const Direction
   return {float(r), float(g), float(b)};
 }
 
+MeasuredSample resampled_roundtrip(const MeasuredSample& sample, const ParameterDictionary& config) {
+  if (sample.is_hdr()) throw InputError("resampled round trip: only LDR samples are supported");
+  const AngularGrid grid = grid_from(config);
+  const ResampleOperator op(sample, grid, ResampleSettings::from(config));
+  std::vector<std::vector<Direction>> lights;
+  for (size_t v = 0; v < sample.view_count(); ++v) lights.push_back(sample.lights(v));
+  MeasuredSample out(sample.width(), sample.height(), sample.views(), lights, Dynamic::LDR);
+  constexpr size_t kTile = 64;
+  const size_t pairs = sample.pair_count(), values = op.values_per_texel();
+  std::vector<float> tile(kTile * values);
+  for (size_t first = 0; first < sample.texel_count(); first += kTile) {
+    const size_t n = std::min(kTile, sample.texel_count() - first);
+    op.apply(sample, first, n, tile.data());
+    for (size_t i = 0; i < n; ++i)
+      for (size_t v = 0; v < sample.view_count(); ++v)
+        for (size_t l = 0; l < lights[v].size(); ++l) {
+          const Rgb rgb = evaluate_resampled(tile.data() + i * values, grid, lights[v][l], sample.views()[v]);
+          uint8_t* o = out.ldr_data().data() + ((first + i) * pairs + sample.pair_index(v, l)) * 3;
+          o[0] = uint8_t(std::clamp(std::lround(rgb.r), 0L, 255L));
+          o[1] = uint8_t(std::clamp(std::lround(rgb.g), 0L, 255L));
+          o[2] = uint8_t(std::clamp(std::lround(rgb.b), 0L, 255L));
+        }
+  }
+  return out;
+}
+
 void texel_vq(const MeasuredSample& sample, const ParameterDictionary& config, const std::vector<int>& entries,
               const PointSink& sink, const TexelVqOptions& options) {
   if (sample.is_hdr()) throw InputError("one-level VQ: only LDR samples are supported");
