@@ -8,7 +8,7 @@
 //   --presets a,b,..   synthetic presets at --size (default tile,leather,wood,corduroy; --quick tile,leather,wood)
 //   --size N           their size (128; --quick 32)
 //   --big p:N,..       extra presets at their own size (leather:256; --quick none); "none" for none
-//   --proposte N       the real proposte sample cropped to N x N from its corner (256 = whole; --quick 32; 0 = skip)
+//   --proposte N       the real proposte sample cropped to N x N from its corner (256 = whole; --quick 16; 0 = skip)
 //   --scales a,b,..    factors on configs/pipeline.json's thresholds.ssim (0.7,1,1.5)
 //   --pca, --grouped, --lab, --vq a,b,..   baseline sizes (components / code-book entries)
 #include <algorithm>
@@ -43,7 +43,7 @@ struct RdArgs {
   std::vector<std::pair<std::string, int>> big{{"leather", 256}};
   int proposte = 256;
   std::vector<double> scales{0.7, 1.0, 1.5};
-  std::vector<int> pca{1, 2, 5}, grouped{2, 4, 8}, lab{4, 16, 64}, vq{32, 128};
+  std::vector<int> pca{1, 2, 5}, grouped{1, 2, 8}, lab{1, 4, 16, 64}, vq{32, 128};
 };
 
 std::vector<std::string> split(const std::string& s, char sep) {
@@ -85,11 +85,11 @@ RdArgs take_rd_args(std::vector<std::string>& argv, bool& quick) {
   if (quick) {
     r.size = 32;
     r.big.clear();
-    r.proposte = 32;
+    r.proposte = 16;  // real data grows large code-books: even a 32 x 32 corner takes minutes per threshold scale
     r.presets = {"tile", "leather", "wood"};
     r.pca = {1, 2};
     r.grouped = {1, 2};
-    r.lab = {2, 4, 8};
+    r.lab = {1, 2, 4, 8};
     r.vq = {4};
   }
   std::vector<std::string> rest;
@@ -205,7 +205,7 @@ bool is_pca(const std::string& method) { return method.find("PCA") != std::strin
 struct Matched {
   std::string text;  // one markdown line
   nlohmann::json json;
-  int below_2x = 0, compared = 0;
+  int below_2x = 0, compared = 0, bounded = 0;  // bounded: factors that are only upper bounds
   std::string best_method;  // the PCA baseline most often best at the matched points
 };
 
@@ -242,6 +242,7 @@ Matched matched_mssim(const std::vector<Point>& points) {
     } else {
       const double f = b->ratio / best;
       ++compared;
+      out.bounded += bound;
       ++best_count[best_method];
       at_least_2x += f >= 2.0;
       std::snprintf(buf, sizeof buf, "MSSIM %.3f: btfvq 1:%.0f vs %s 1:%.0f%s = **%s%.2fx**; ", b->e.mssim_y, b->ratio,
@@ -257,7 +258,8 @@ Matched matched_mssim(const std::vector<Point>& points) {
     if (out.best_method.empty() || n > best_count[out.best_method]) out.best_method = method;
   std::string s = line.str();
   if (s.size() >= 2) s.resize(s.size() - 2);
-  out.text = s + (compared ? (at_least_2x == compared ? " -- at least 2x at every matched point."
+  out.text = s + (compared ? (at_least_2x == compared ? (out.bounded ? " -- upper bounds only: 2x is not established."
+                                                                        : " -- at least 2x at every matched point.")
                                                       : " -- below 2x at " + std::to_string(compared - at_least_2x) +
                                                             " of " + std::to_string(compared) + " matched points.")
                            : "");
@@ -309,9 +311,10 @@ int main(int argc, char** argv) {
         "no perceptual filter); **one-level VQ** (btfvq's resampled texels, one k-means code-book of N whole "
         "texels). Encode time of a baseline = its decomposition (shared by its sizes) plus the size's quantization. "
         "MSSIM on BT.601 luma; CIEDE2000 mean over every texel of every image.\n\n";
-  if (quick) md << "*--quick: 32 x 32 samples and a 32 x 32 corner of proposte; the ratios of PCA baselines depend on "
-                   "the texel count (a basis is amortized over fewer texels), so quick figures favour btfvq less than "
-                   "full-size ones would at some sizes and more at others.*\n\n";
+  if (quick) md << "*--quick: 32 x 32 samples and a 16 x 16 corner of proposte; every ratio depends on the texel "
+                   "count (PCA bases of 243 to 6561 values and btfvq's code-books are shared by fewer texels), so quick "
+                   "ratios are not full-size ratios; real data grows large code-books, so the small proposte corner "
+                   "has a low btfvq ratio.*\n\n";
 
   int cases = 0, wins = 0;
   auto run_case = [&](const std::string& key, const std::string& title, const MeasuredSample& sample) {
@@ -371,14 +374,21 @@ int main(int argc, char** argv) {
               "nearly low-rank and a handful of components reach btfvq's quality. ";
       else
         md << "Its per-view (or per-group) bases follow the light dependence closely at one byte per texel and component. ";
+      if (ceiling.mssim_y - hi > 0.05)
+        md << "The parametrization alone keeps MSSIM at " << std::to_string(ceiling.mssim_y).substr(0, 5)
+           << ", so btfvq's loss comes from its code-books; ";
+      else
+        md << "btfvq is close to the parametrization's ceiling, so its loss is the resampling's; ";
       if (hi - lo < 0.05)
-        md << "btfvq's MSSIM moves little with the thresholds while its size moves a lot (a nearly vertical curve): "
-              "its quality is bounded by the parametrization (the ceiling above) more than by its code-books.";
+        md << "scaling the thresholds moves its MSSIM only within " << std::to_string(lo).substr(0, 5) << "-"
+           << std::to_string(hi).substr(0, 5)
+           << " while its size changes a lot (a nearly vertical curve): tighter thresholds buy bytes, not quality, "
+              "so btfvq cannot reach the high-MSSIM part of the PCA curves where PCA is least efficient.";
       md << "\n\n";
     }
     md << "![rate-distortion, " << title << "](bench/results/rd_" << key << ".png)\n\n";
     ++cases;
-    wins += m.below_2x == 0 && m.compared > 0;
+    wins += m.below_2x == 0 && m.bounded == 0 && m.compared > 0;
     figures[key] = {{"points", rows}, {"matched_mssim", m.json}, {"ceiling_mssim", ceiling.mssim_y},
                     {"below_2x", m.below_2x}};
   };
