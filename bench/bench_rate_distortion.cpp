@@ -376,14 +376,15 @@ int main(int argc, char** argv) {
               "nearly low-rank and a handful of components reach btfvq's quality. ";
       else
         md << "Its per-view (or per-group) bases follow the light dependence closely at one byte per texel and component. ";
+      char num[64];
+      std::snprintf(num, sizeof num, "%.3f", ceiling.mssim_y);
       if (ceiling.mssim_y - hi > 0.05)
-        md << "The parametrization alone keeps MSSIM at " << std::to_string(ceiling.mssim_y).substr(0, 5)
-           << ", so btfvq's loss comes from its code-books; ";
+        md << "The parametrization alone keeps MSSIM at " << num << ", so btfvq's loss comes from its code-books; ";
       else
         md << "btfvq is close to the parametrization's ceiling, so its loss is the resampling's; ";
+      std::snprintf(num, sizeof num, "%.3f-%.3f", lo, hi);
       if (hi - lo < 0.05)
-        md << "scaling the thresholds moves its MSSIM only within " << std::to_string(lo).substr(0, 5) << "-"
-           << std::to_string(hi).substr(0, 5)
+        md << "scaling the thresholds moves its MSSIM only within " << num
            << " while its size changes a lot (a nearly vertical curve): tighter thresholds buy bytes, not quality, "
               "so btfvq cannot reach the high-MSSIM part of the PCA curves where PCA is least efficient.";
       md << "\n\n";
