@@ -9,7 +9,7 @@ PREFIX     ?= /usr/local
 DEB_PACKAGES = build-essential cmake pkg-config \
   pocl-opencl-icd opencl-c-headers opencl-clhpp-headers ocl-icd-opencl-dev clinfo \
   libopenimageio-dev libspdlog-dev nlohmann-json3-dev libcpp-httplib-dev doctest-dev \
-  libsqlite3-dev libarchive-dev libeigen3-dev libzstd-dev unzip curl python3
+  libsqlite3-dev libarchive-dev libeigen3-dev libzstd-dev unzip curl python3 python3-matplotlib
 
 .PHONY: deps build build-release test demo bench clean install
 
