@@ -36,17 +36,23 @@ def main():
     commit = sh("git rev-parse --short HEAD") + (" (dirty)" if sh("git status --porcelain --untracked-files=no") else "")
     when = datetime.datetime.utcnow().strftime("%Y-%m-%d %H:%M UTC")
     lines = ["# btfvq benchmarks", "",
-             f"Written by `{a.command}` (bench/run.sh) on {when}, commit {commit}.", "",
+             f"Assembled by `{a.command}` (bench/run.sh) on {when}, commit {commit}; each section says "
+             "which run measured it (bench/results/sections/).", "",
              f"Machine: {machine['cpu']}, {machine['cores']} cores, {machine['memory_gb']} GB, {machine['os']}; "
              f"{machine['compiler']}; OpenCL: {machine['opencl'] or 'none'}.", "",
              "Absolute times on a shared 2-core machine are noisy; ratios measured within one run are the figures to trust.", ""]
     for s in sections:
-        lines += [f"## {s['title']}", "", s["markdown"].rstrip(), ""]
+        lines += [f"## {s['title']}", ""]
+        p = s.get("provenance")
+        if p:
+            lines += [f"*Measured by `{p['command']}` at commit {p['commit']} on {p['date']}.*", ""]
+        lines += [s["markdown"].rstrip(), ""]
     with open(a.out, "w") as fh:
         fh.write("\n".join(lines))
     with open(a.json, "w") as fh:
         json.dump({"machine": machine, "commit": commit, "date": when, "command": a.command,
-                   "benchmarks": {s["title"]: s.get("figures", {}) for s in sections}}, fh, indent=2)
+                   "benchmarks": {s["title"]: dict(s.get("figures", {}), provenance=s.get("provenance"))
+                                  for s in sections}}, fh, indent=2)
 
 if __name__ == "__main__":
     main()

@@ -10,16 +10,33 @@ bin=${1:-build-release/bin}
 shift || true
 extra=("$@")
 root=$(cd "$(dirname "$0")/.." && pwd)
+# Every program's section is kept in bench/results/sections/ with its own provenance (commit, date,
+# arguments), so that a long benchmark can be re-run alone: BENCH_ONLY="bench_compression" make bench
+# re-runs that program and re-assembles BENCHMARKS.md from all kept sections.
+sections="$root/bench/results/sections"
+mkdir -p "$sections"
 work=$(mktemp -d /tmp/btfvq-bench.XXXXXX)
 trap 'rm -rf "$work"' EXIT
-mkdir -p "$root/bench/results"
+commit=$(cd "$root" && git rev-parse --short HEAD 2>/dev/null || echo unknown)
+if [ -n "$(cd "$root" && git status --porcelain --untracked-files=no 2>/dev/null)" ]; then commit="$commit (dirty)"; fi
 for b in "$bin"/bench_*; do
   [ -x "$b" ] || continue
   name=$(basename "$b")
+  if [ -n "${BENCH_ONLY:-}" ] && [[ ",${BENCH_ONLY// /,}," != *",$name,"* ]]; then continue; fi
   echo "== $name" >&2
   "$b" --json "$work/$name.json" --scratch "$work/$name.scratch" --testdata "$root/../shared/testdata" \
        --figures "$root/bench/results" "${extra[@]}" >&2
+  python3 - "$work/$name.json" "$sections/$name.json" "$commit" "make bench${extra:+ BENCH_ARGS=\"${extra[*]}\"}" <<'PY'
+import datetime, json, sys
+src, dst, commit, command = sys.argv[1:5]
+with open(src) as fh:
+    s = json.load(fh)
+s["provenance"] = {"commit": commit, "command": command,
+                   "date": datetime.datetime.utcnow().strftime("%Y-%m-%d %H:%M UTC")}
+with open(dst, "w") as fh:
+    json.dump(s, fh, indent=1)
+PY
 done
-python3 "$root/bench/report.py" --results "$work" --out "$root/BENCHMARKS.md" --json "$root/bench/results/latest.json" \
-  --command "make bench${extra:+ BENCH_ARGS=\"${extra[*]}\"}"
+python3 "$root/bench/report.py" --results "$sections" --out "$root/BENCHMARKS.md" --json "$root/bench/results/latest.json" \
+  --command "make bench${extra:+ BENCH_ARGS=\"${extra[*]}\"}${BENCH_ONLY:+ (BENCH_ONLY=$BENCH_ONLY)}"
 echo "wrote BENCHMARKS.md and bench/results/latest.json" >&2
