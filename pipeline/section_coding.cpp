@@ -11,9 +11,25 @@ namespace btfvq {
 
 namespace {
 
-// Per field: u8 model = flags (bit 0: "same as left / above" flags before each value) | literal << 1.
+// Per field, u8 model (docs/format.md, encoding 2):
+//   bit 0     "same as left" / "same as above" flags before each value
+//   bits 1-2  literal: 0 bit tree, 1 difference to a prediction, 2 the value as an integer
+//   bits 3-4  prediction (literal 1): 0 left (else above), 1 above (else left), 2 median edge detector
+//   bit 5     separate literal models per column (rows of at most kMaxColumnContexts values)
 enum Literal : uint8_t { Tree = 0, Delta = 1, Plain = 2 };
-constexpr uint8_t kModels = 6;
+enum Prediction : uint8_t { Left = 0, Above = 1, Median = 2 };
+constexpr uint8_t kModels = 64;
+constexpr uint64_t kMaxColumnContexts = 16;
+constexpr int kMaxColumnTreeBits = 12;
+
+bool valid_model(uint8_t model, int w, uint64_t cols) {
+  const unsigned literal = (model >> 1) & 3, prediction = (model >> 3) & 3;
+  const bool per_column = (model >> 5) & 1;
+  if (model >= kModels || literal > Plain || prediction > Median) return false;
+  if (literal != Delta && prediction != 0) return false;
+  if (per_column && (cols < 2 || cols > kMaxColumnContexts || (literal == Tree && w > kMaxColumnTreeBits))) return false;
+  return true;
+}
 
 uint32_t mask_of(int w) { return w >= 32 ? 0xFFFFFFFFu : (1u << w) - 1; }
 
@@ -37,16 +53,16 @@ void put_bits(uint8_t* p, uint64_t pos, int w, uint32_t v) {
 // The literal models of one field; a value of more than 16 bits is a tree over its top bits and one
 // over each of its two low bytes.
 struct Models {
-  explicit Models(int w)
-      : w(w), top(w > 16 ? w - 16 : w), mid(8), low(8) {
+  Models(int w, size_t contexts) : w(w), top(contexts, SymbolModel(w > 16 ? w - 16 : w)), mid(8), low(8), integer(2 * contexts) {
     std::fill(std::begin(same_left), std::end(same_left), kBitModelInit);
     std::fill(std::begin(same_above), std::end(same_above), kBitModelInit);
   }
   int w;
   BitModel same_left[6];
   BitModel same_above[3];
-  SymbolModel top, mid, low;
-  IntegerModel integer[2];  // [a neighbour predicts the value]
+  std::vector<SymbolModel> top;  // per context (column)
+  SymbolModel mid, low;
+  std::vector<IntegerModel> integer;  // per (context, whether a neighbour predicts the value)
 };
 
 struct EncodeSide {
@@ -89,15 +105,17 @@ uint32_t unzigzag(uint32_t z, int w) {
 template <class Side>
 void code_field(Side& side, uint8_t* bits, uint64_t count, uint64_t cols, int w, uint8_t model,
                 RangeDecoder* checker) {
-  Models m(w);
-  const bool flags = model & 1;
-  const Literal literal = Literal(model >> 1);
+  const bool flags = model & 1, per_column = (model >> 5) & 1;
+  const Literal literal = Literal((model >> 1) & 3);
+  const Prediction prediction = Prediction((model >> 3) & 3);
+  Models m(w, per_column ? size_t(cols) : 1);
   constexpr bool decoding = std::is_same_v<Side, DecodeSide>;
   unsigned state = 2;  // how the previous value was coded: 0 same as left, 1 same as above, 2 literal
   for (uint64_t i = 0; i < count; ++i) {
     const bool has_left = i % cols != 0, has_above = i >= cols;
     const uint32_t left = has_left ? get_bits(bits, (i - 1) * uint64_t(w), w) : 0;
     const uint32_t above = has_above ? get_bits(bits, (i - cols) * uint64_t(w), w) : 0;
+    const size_t ctx = per_column ? size_t(i % cols) : 0;
     const uint32_t truth = decoding ? 0 : get_bits(bits, i * uint64_t(w), w);
     uint32_t v = 0;
     bool done = false;
@@ -121,21 +139,30 @@ void code_field(Side& side, uint8_t* bits, uint64_t count, uint64_t cols, int w,
       switch (literal) {
         case Tree:
           if (w > 16) {
-            v = side.symbol(m.top, truth >> 16) << 16;
+            v = side.symbol(m.top[0], truth >> 16) << 16;
             v |= side.symbol(m.mid, (truth >> 8) & 0xFF) << 8;
             v |= side.symbol(m.low, truth & 0xFF);
           } else {
-            v = side.symbol(m.top, truth);
+            v = side.symbol(m.top[ctx], truth);
           }
           break;
         case Delta: {
-          const uint32_t predicted = has_left ? left : above;
+          uint32_t predicted = 0;
+          if (has_left && has_above && prediction == Median) {
+            const uint32_t corner = get_bits(bits, (i - cols - 1) * uint64_t(w), w);
+            const uint32_t lo = std::min(left, above), hi = std::max(left, above);
+            predicted = corner >= hi ? lo : corner <= lo ? hi : uint32_t((uint64_t(left) + above - corner) & mask_of(w));
+          } else if (has_left && (prediction != Above || !has_above)) {
+            predicted = left;
+          } else if (has_above) {
+            predicted = above;
+          }
           const bool predicts = has_left || has_above;
-          v = (predicted + unzigzag(side.integer(m.integer[predicts], zigzag(truth - predicted, w)), w)) & mask_of(w);
+          v = (predicted + unzigzag(side.integer(m.integer[2 * ctx + predicts], zigzag(truth - predicted, w)), w)) & mask_of(w);
           break;
         }
         case Plain:
-          v = side.integer(m.integer[0], truth);
+          v = side.integer(m.integer[2 * ctx], truth);
           if constexpr (decoding)
             if (v > mask_of(w)) checker->fail("a value wider than its field");
           break;
@@ -188,13 +215,19 @@ std::optional<std::vector<uint8_t>> encode_unchecked(const std::vector<uint8_t>&
     pos += bytes;
     std::vector<uint8_t> best;
     uint8_t best_model = 0;
+    bool first = true;
     for (uint8_t model = 0; model < kModels; ++model) {
+      if (!valid_model(model, w, f.cols)) continue;
       std::vector<uint8_t> stream;
       RangeEncoder rc(stream);
       EncodeSide side{rc};
       code_field(side, field.data(), f.count, f.cols, w, model, nullptr);
       rc.finish();
-      if (model == 0 || stream.size() < best.size()) best = std::move(stream), best_model = model;
+      if (first || stream.size() < best.size()) {
+        best = std::move(stream);
+        best_model = model;
+      }
+      first = false;
     }
     out.push_back(best_model);
     if (&f != &shape.fields.back()) put_varint(out, best.size());  // the last stream ends the section
@@ -239,7 +272,7 @@ std::vector<uint8_t> model_decode(const uint8_t* stored, size_t n, const Section
     out_size += l.header + l.bytes;
     in += l.header;
     l.model = stored[in++];
-    if (l.model >= kModels) fail("unknown symbol model " + std::to_string(l.model));
+    if (!valid_model(l.model, l.width, f.cols)) fail("unknown symbol model " + std::to_string(l.model));
     if (i + 1 == shape.fields.size()) {
       l.stream_length = n - in;
     } else {
