@@ -694,6 +694,17 @@ std::vector<SectionEntry> sections_since(const DatabaseHead& head, uint32_t have
   return out;
 }
 
+std::vector<uint8_t> decode_section_bytes(const SectionEntry& entry, const AngularGrid& grid,
+                                          const std::vector<uint8_t>& stored) {
+  ByteReader check(stored.data(), stored.size(), describe(entry, 0));
+  if (stored.size() != entry.length) check.fail("has " + std::to_string(stored.size()) + " bytes, the table says " + std::to_string(entry.length));
+  if (crc64(stored.data(), stored.size()) != entry.checksum) check.fail("checksum does not match (corrupted)");
+  if (entry.encoding > 2 || (entry.encoding == 0 && entry.raw_length != entry.length) ||
+      (entry.encoding != 0 && !within_bomb_bound(entry.raw_length, entry.length)))
+    check.fail("unsupported encoding or raw length");
+  return decode_section(entry, grid, stored.data(), check);
+}
+
 Database parse_database(const std::vector<uint8_t>& bytes, const std::string& where) {
   const DatabaseHead h = parse_head(bytes.data(), bytes.size(), where);
   if (h.file_size != bytes.size())

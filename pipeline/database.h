@@ -113,6 +113,11 @@ void publish_version(Database& db, const PackSettings& settings = {});
 // if a newer libzstd would compress them differently. An unusable `previous` is ignored.
 std::vector<uint8_t> serialize_database(const Database& db, const PackSettings& settings = {},
                                         const std::vector<uint8_t>* previous = nullptr);
+// One section on its own (random access: its stored bytes fetched by range using the head): checks
+// the checksum and decodes encoding 0, 1 or 2 to the raw packed bytes (docs/format.md). Throws
+// CorruptError naming the section on any problem.
+std::vector<uint8_t> decode_section_bytes(const SectionEntry& entry, const AngularGrid& grid,
+                                          const std::vector<uint8_t>& stored);
 // Checks everything (see read_database) and returns the database with its versions.
 Database parse_database(const std::vector<uint8_t>& bytes, const std::string& where = "database");
 

@@ -198,7 +198,8 @@ int field_width(const FieldShape& f, const uint8_t* p, size_t n) {
 
 uint64_t header_of(const FieldShape& f) { return f.kind == FieldShape::Index ? 1 : 10; }
 
-std::optional<std::vector<uint8_t>> encode_unchecked(const std::vector<uint8_t>& raw, const SectionShape& shape) {
+std::optional<std::vector<uint8_t>> encode_unchecked(const std::vector<uint8_t>& raw, const SectionShape& shape,
+                                                     int only_model) {
   if (shape.header_bytes > raw.size()) return std::nullopt;
   std::vector<uint8_t> out(raw.begin(), raw.begin() + long(shape.header_bytes));
   uint64_t pos = shape.header_bytes;
@@ -218,6 +219,7 @@ std::optional<std::vector<uint8_t>> encode_unchecked(const std::vector<uint8_t>&
     bool first = true;
     for (uint8_t model = 0; model < kModels; ++model) {
       if (!valid_model(model, w, f.cols)) continue;
+      if (only_model >= 0 && model != (valid_model(uint8_t(only_model), w, f.cols) ? only_model : 0)) continue;
       std::vector<uint8_t> stream;
       RangeEncoder rc(stream);
       EncodeSide side{rc};
@@ -239,8 +241,9 @@ std::optional<std::vector<uint8_t>> encode_unchecked(const std::vector<uint8_t>&
 
 }  // namespace
 
-std::optional<std::vector<uint8_t>> model_encode(const std::vector<uint8_t>& raw, const SectionShape& shape) {
-  auto out = encode_unchecked(raw, shape);
+std::optional<std::vector<uint8_t>> model_encode(const std::vector<uint8_t>& raw, const SectionShape& shape,
+                                                 int only_model) {
+  auto out = encode_unchecked(raw, shape, only_model);
   if (!out) return out;
   // Padding bits or anything else the model cannot reproduce: store the section another way.
   try {

@@ -28,8 +28,10 @@ struct SectionShape {
 };
 
 // The stored bytes of encoding 2 for the packed section `raw`; nothing if `raw` does not have the
-// given shape (the caller then stores another encoding).
-std::optional<std::vector<uint8_t>> model_encode(const std::vector<uint8_t>& raw, const SectionShape& shape);
+// given shape (the caller then stores another encoding). Each field gets the symbol model that codes
+// it smallest; `only_model` >= 0 forces that model on every field where it is valid (for tests).
+std::optional<std::vector<uint8_t>> model_encode(const std::vector<uint8_t>& raw, const SectionShape& shape,
+                                                 int only_model = -1);
 
 // The packed section back from stored bytes. Anything inconsistent (sizes that do not add up to
 // raw_length, an unknown model, a damaged range coder stream) throws CorruptError naming `where`;
