@@ -12,6 +12,7 @@
 #include "pipeline/compress.h"
 #include "pipeline/database.h"
 #include "pipeline/synthetic.h"
+#include "pipeline/packing.h"
 
 using namespace btfvq;
 
@@ -65,11 +66,40 @@ void probe(const std::string& name, Database db) {
   std::printf("%s: raw %zu zstd %zu (%+.1f%%) rc %zu (%+.1f%%)\n", name.c_str(), a.size(), b.size(),
               100.0 * (double(a.size()) / double(b.size()) - 1), c.size(), 100.0 * (double(a.size()) / double(c.size()) - 1));
   const DatabaseHead ha = parse_head(a.data(), a.size()), hb = parse_head(b.data(), b.size()), hc = parse_head(c.data(), c.size());
-  for (size_t i = 0; i < ha.sections.size(); ++i)
+  for (size_t i = 0; i < ha.sections.size(); ++i) {
+    const auto& e = hc.sections[i];
+    if (e.encoding == 2) {
+      // Per field: model and stream bytes (layout of docs/format.md, encoding 2).
+      const uint8_t* p = c.data() + e.offset;
+      size_t at = e.kind == SectionKind::Material ? 2 + (p[0] | (p[1] << 8)) + 17 : 16;
+      const size_t nf = e.kind == SectionKind::Material ? 2
+                        : (e.codebook == CodebookId::P1 || e.codebook == CodebookId::C || e.codebook == CodebookId::I1 ||
+                           e.codebook == CodebookId::I2) ? 1 : 2;
+      bool values[2] = {e.codebook == CodebookId::P1 || e.codebook == CodebookId::C, true};
+      if (e.codebook == CodebookId::M) values[1] = false;
+      if (e.kind == SectionKind::Material) values[0] = false;
+      std::printf("   ");
+      for (size_t f = 0; f < nf; ++f) {
+        at += values[f] ? 10 : 1;
+        const int model = p[at++];
+        uint64_t len = 0;
+        if (f + 1 < nf) {
+          for (int sh = 0;; sh += 7) { const uint8_t b = p[at++]; len |= uint64_t(b & 0x7F) << sh; if (!(b & 0x80)) break; }
+        } else {
+          len = e.offset + e.length - (uint64_t(p - c.data()) + at) + 0;
+          len = (e.length) - at;
+        }
+        std::printf(" field %zu model %2d (flags %d lit %d pred %d col %d) %llu bytes;", f, model, model & 1, (model >> 1) & 3,
+                    (model >> 3) & 3, (model >> 5) & 1, (unsigned long long)len);
+        at += len;
+      }
+      std::printf("\n");
+    }
     std::printf("  section %-10s raw %8llu zstd %8llu best %8llu (enc %d)\n",
                 ha.sections[i].kind == SectionKind::Codebook ? codebook_name(ha.sections[i].codebook) : "material",
                 (unsigned long long)ha.sections[i].length, (unsigned long long)hb.sections[i].length,
                 (unsigned long long)hc.sections[i].length, hc.sections[i].encoding);
+  }
   // Field statistics on the codes (scales as their 8-bit codes via the value stored).
   Database q = db;
   publish_version(q);

@@ -1,27 +1,46 @@
 #include "pipeline/range_coder.h"
 
+#include <algorithm>
+#include <bit>
+
 #include "pipeline/error.h"
 
 namespace btfvq {
 
 namespace {
 
-constexpr int kProbBits = 11;
-constexpr int kMoveBits = 5;
+constexpr int kProbBits = 15;
+constexpr int kFastBits = 3;
+constexpr int kSlowBits = 7;
 constexpr uint32_t kTop = 1u << 24;
 
 }  // namespace
 
+void BitModel::update(unsigned bit) {
+  // Shift of the counting estimate: 1 + floor(log2(seen + 1)), at most kSlowBits.
+  const int shift = std::min(kSlowBits, int(std::bit_width(unsigned(seen) + 1)));
+  if (seen < 255) ++seen;
+  const uint32_t one = 1u << kProbBits;
+  if (bit == 0) {
+    fast = uint16_t(fast + ((one - fast) >> kFastBits));
+    slow = uint16_t(slow + ((one - slow) >> shift));
+  } else {
+    fast = uint16_t(fast - (fast >> kFastBits));
+    slow = uint16_t(slow - (slow >> shift));
+  }
+  // Neither estimate may reach 0 or 2^15 (the range would collapse).
+  slow = uint16_t(std::clamp<uint32_t>(slow, 32, one - 32));
+}
+
 void RangeEncoder::bit(BitModel& p, unsigned b) {
-  const uint32_t bound = (range_ >> kProbBits) * p;
+  const uint32_t bound = (range_ >> kProbBits) * p.p();
   if (b == 0) {
     range_ = bound;
-    p = BitModel(p + (((1u << kProbBits) - p) >> kMoveBits));
   } else {
     low_ += bound;
     range_ -= bound;
-    p = BitModel(p - (p >> kMoveBits));
   }
+  p.update(b);
   while (range_ < kTop) {
     range_ <<= 8;
     shift_low();
@@ -63,18 +82,17 @@ uint8_t RangeDecoder::next() {
 void RangeDecoder::fail(const std::string& what) const { throw CorruptError(where_ + ": " + what); }
 
 unsigned RangeDecoder::bit(BitModel& p) {
-  const uint32_t bound = (range_ >> kProbBits) * p;
+  const uint32_t bound = (range_ >> kProbBits) * p.p();
   unsigned b;
   if (code_ < bound) {
     range_ = bound;
-    p = BitModel(p + (((1u << kProbBits) - p) >> kMoveBits));
     b = 0;
   } else {
     code_ -= bound;
     range_ -= bound;
-    p = BitModel(p - (p >> kMoveBits));
     b = 1;
   }
+  p.update(b);
   while (range_ < kTop) {
     range_ <<= 8;
     code_ = (code_ << 8) | next();
@@ -87,9 +105,7 @@ void RangeDecoder::finish() const {
   if (pos_ != n_) fail("range coder stream has " + std::to_string(n_ - pos_) + " bytes past its end");
 }
 
-IntegerModel::IntegerModel() : high_(33u << kContextBits, kBitModelInit), low_(33 * 32, kBitModelInit) {
-  for (BitModel& p : length_) p = kBitModelInit;
-}
+IntegerModel::IntegerModel() : high_(33u << kContextBits), low_(33 * 32) {}
 
 void IntegerModel::encode(RangeEncoder& e, uint32_t v) {
   int n = 0;
@@ -135,7 +151,7 @@ uint32_t IntegerModel::decode(RangeDecoder& d) {
   return v;
 }
 
-SymbolModel::SymbolModel(int bits) : bits_(bits), tree_(size_t(1) << bits, kBitModelInit) {}
+SymbolModel::SymbolModel(int bits) : bits_(bits), tree_(size_t(1) << bits) {}
 
 void SymbolModel::encode(RangeEncoder& e, uint32_t v) {
   unsigned m = 1;

@@ -10,9 +10,18 @@
 
 namespace btfvq {
 
-// Probability (out of 2^11) that the next bit is 0.
-using BitModel = uint16_t;
-inline constexpr BitModel kBitModelInit = 1 << 10;
+// Probability that the next bit is 0, out of 2^15: the mean of a fast estimate (moves 1/8 of the way
+// towards each bit) and a counting one (moves 1/2, 1/4, ... down to 1/128 of the way as bits are seen,
+// i.e. close to the frequency so far), so that a model learns quickly and still settles on skewed
+// statistics.
+struct BitModel {
+  uint16_t fast = 1 << 14;
+  uint16_t slow = 1 << 14;
+  uint8_t seen = 0;
+  uint32_t p() const { return (uint32_t(fast) + slow) >> 1; }
+  void update(unsigned bit);
+};
+inline constexpr BitModel kBitModelInit{};
 
 class RangeEncoder {
  public:

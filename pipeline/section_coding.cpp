@@ -17,16 +17,17 @@ namespace {
 //   bits 3-4  prediction (literal 1): 0 left (else above), 1 above (else left), 2 median edge detector
 //   bit 5     separate literal models per column (rows of at most kMaxColumnContexts values)
 enum Literal : uint8_t { Tree = 0, Delta = 1, Plain = 2 };
-enum Prediction : uint8_t { Left = 0, Above = 1, Median = 2 };
-constexpr uint8_t kModels = 64;
+enum Prediction : uint8_t { Left = 0, Above = 1, Median = 2, Slope = 3 };
+constexpr size_t kActivityClasses = 4;
+constexpr uint8_t kModels = 128;
 constexpr uint64_t kMaxColumnContexts = 16;
 constexpr int kMaxColumnTreeBits = 12;
 
 bool valid_model(uint8_t model, int w, uint64_t cols) {
   const unsigned literal = (model >> 1) & 3, prediction = (model >> 3) & 3;
-  const bool per_column = (model >> 5) & 1;
-  if (model >= kModels || literal > Plain || prediction > Median) return false;
-  if (literal != Delta && prediction != 0) return false;
+  const bool per_column = (model >> 5) & 1, by_activity = (model >> 6) & 1;
+  if (model >= kModels || literal > Plain) return false;
+  if (literal != Delta && (prediction != 0 || by_activity)) return false;
   if (per_column && (cols < 2 || cols > kMaxColumnContexts || (literal == Tree && w > kMaxColumnTreeBits))) return false;
   return true;
 }
@@ -53,16 +54,15 @@ void put_bits(uint8_t* p, uint64_t pos, int w, uint32_t v) {
 // The literal models of one field; a value of more than 16 bits is a tree over its top bits and one
 // over each of its two low bytes.
 struct Models {
-  Models(int w, size_t contexts) : w(w), top(contexts, SymbolModel(w > 16 ? w - 16 : w)), mid(8), low(8), integer(2 * contexts) {
-    std::fill(std::begin(same_left), std::end(same_left), kBitModelInit);
-    std::fill(std::begin(same_above), std::end(same_above), kBitModelInit);
+  Models(int w, size_t contexts)
+      : w(w), top(contexts, SymbolModel(w > 16 ? w - 16 : w)), mid(8), low(8), integer(2 * kActivityClasses * contexts) {
   }
   int w;
   BitModel same_left[6];
   BitModel same_above[3];
   std::vector<SymbolModel> top;  // per context (column)
   SymbolModel mid, low;
-  std::vector<IntegerModel> integer;  // per (context, whether a neighbour predicts the value)
+  std::vector<IntegerModel> integer;  // per (context, activity class, whether a neighbour predicts the value)
 };
 
 struct EncodeSide {
@@ -105,7 +105,7 @@ uint32_t unzigzag(uint32_t z, int w) {
 template <class Side>
 void code_field(Side& side, uint8_t* bits, uint64_t count, uint64_t cols, int w, uint8_t model,
                 RangeDecoder* checker) {
-  const bool flags = model & 1, per_column = (model >> 5) & 1;
+  const bool flags = model & 1, per_column = (model >> 5) & 1, by_activity = (model >> 6) & 1;
   const Literal literal = Literal((model >> 1) & 3);
   const Prediction prediction = Prediction((model >> 3) & 3);
   Models m(w, per_column ? size_t(cols) : 1);
@@ -148,7 +148,12 @@ void code_field(Side& side, uint8_t* bits, uint64_t count, uint64_t cols, int w,
           break;
         case Delta: {
           uint32_t predicted = 0;
-          if (has_left && has_above && prediction == Median) {
+          const bool has_second = i % cols >= 2;
+          const uint32_t second = has_second ? get_bits(bits, (i - 2) * uint64_t(w), w) : 0;
+          if (has_second && prediction == Slope) {
+            const int64_t p = 2 * int64_t(left) - int64_t(second);
+            predicted = uint32_t(std::clamp<int64_t>(p, 0, int64_t(mask_of(w))));
+          } else if (has_left && has_above && prediction == Median) {
             const uint32_t corner = get_bits(bits, (i - cols - 1) * uint64_t(w), w);
             const uint32_t lo = std::min(left, above), hi = std::max(left, above);
             predicted = corner >= hi ? lo : corner <= lo ? hi : uint32_t((uint64_t(left) + above - corner) & mask_of(w));
@@ -158,11 +163,17 @@ void code_field(Side& side, uint8_t* bits, uint64_t count, uint64_t cols, int w,
             predicted = above;
           }
           const bool predicts = has_left || has_above;
-          v = (predicted + unzigzag(side.integer(m.integer[2 * ctx + predicts], zigzag(truth - predicted, w)), w)) & mask_of(w);
+          // How busy the neighbourhood is: differences there are likely as large here.
+          const uint32_t activity = has_second ? (left > second ? left - second : second - left)
+                                    : (has_left && has_above) ? (left > above ? left - above : above - left)
+                                                              : 0;
+          const size_t cls = !by_activity || activity == 0 ? 0 : activity < 4 ? 1 : activity < 32 ? 2 : 3;
+          IntegerModel& im = m.integer[(ctx * kActivityClasses + cls) * 2 + predicts];
+          v = (predicted + unzigzag(side.integer(im, zigzag(truth - predicted, w)), w)) & mask_of(w);
           break;
         }
         case Plain:
-          v = side.integer(m.integer[2 * ctx], truth);
+          v = side.integer(m.integer[ctx * kActivityClasses * 2], truth);
           if constexpr (decoding)
             if (v > mask_of(w)) checker->fail("a value wider than its field");
           break;
