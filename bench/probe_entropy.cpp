@@ -86,8 +86,7 @@ void probe(const std::string& name, Database db) {
         if (f + 1 < nf) {
           for (int sh = 0;; sh += 7) { const uint8_t b = p[at++]; len |= uint64_t(b & 0x7F) << sh; if (!(b & 0x80)) break; }
         } else {
-          len = e.offset + e.length - (uint64_t(p - c.data()) + at) + 0;
-          len = (e.length) - at;
+          len = e.length - at;
         }
         std::printf(" field %zu model %2d (flags %d lit %d pred %d col %d) %llu bytes;", f, model, model & 1, (model >> 1) & 3,
                     (model >> 3) & 3, (model >> 5) & 1, (unsigned long long)len);

@@ -14,8 +14,10 @@ namespace {
 // Per field, u8 model (docs/format.md, encoding 2):
 //   bit 0     "same as left" / "same as above" flags before each value
 //   bits 1-2  literal: 0 bit tree, 1 difference to a prediction, 2 the value as an integer
-//   bits 3-4  prediction (literal 1): 0 left (else above), 1 above (else left), 2 median edge detector
+//   bits 3-4  prediction (literal 1): 0 left (else above), 1 above (else left), 2 median edge detector,
+//             3 slope (2 left - second left)
 //   bit 5     separate literal models per column (rows of at most kMaxColumnContexts values)
+//   bit 6     separate difference models per activity class of the neighbourhood (literal 1)
 enum Literal : uint8_t { Tree = 0, Delta = 1, Plain = 2 };
 enum Prediction : uint8_t { Left = 0, Above = 1, Median = 2, Slope = 3 };
 constexpr size_t kActivityClasses = 4;

@@ -3,9 +3,10 @@
 // a section re-coded symbol by symbol with an adaptive binary range coder. Bit packing hides the
 // structure a general-purpose compressor would need (values straddle bytes), so this coder reads the
 // values back out of their fields and models each one against its neighbours in the table or image:
-// equal to the value on the left, equal to the value above, or a literal (full bit tree, or the
-// difference to the left neighbour as a variable-length integer). The encoder tries each model per
-// field and keeps the smallest; the decoded bytes are exactly the packed section.
+// equal to the value on the left, equal to the value above, or a literal (a full bit tree, or the
+// difference to a prediction: left, above, median edge detector or slope, as a variable-length
+// integer, optionally with models per column and per neighbourhood activity). The encoder tries each
+// model per field and keeps the smallest; the decoded bytes are exactly the packed section.
 #include <cstddef>
 #include <cstdint>
 #include <optional>
