@@ -24,6 +24,10 @@ constexpr size_t kActivityClasses = 4;
 constexpr uint8_t kModels = 128;
 constexpr uint64_t kMaxColumnContexts = 16;
 constexpr int kMaxColumnTreeBits = 12;
+// The writer tries every model on fields of up to 2 kTrialValues values; on longer ones only the
+// kFinalists best on the first kTrialValues values.
+constexpr uint64_t kTrialValues = 8192;
+constexpr size_t kFinalists = 4;
 
 bool valid_model(uint8_t model, int w, uint64_t cols) {
   const unsigned literal = (model >> 1) & 3, prediction = (model >> 3) & 3;
@@ -227,22 +231,38 @@ std::optional<std::vector<uint8_t>> encode_unchecked(const std::vector<uint8_t>&
     pos += h;
     field.assign(raw.begin() + long(pos), raw.begin() + long(pos + bytes));
     pos += bytes;
-    std::vector<uint8_t> best;
-    uint8_t best_model = 0;
-    bool first = true;
+    std::vector<uint8_t> candidates;
     for (uint8_t model = 0; model < kModels; ++model) {
       if (!valid_model(model, w, f.cols)) continue;
       if (only_model >= 0 && model != (valid_model(uint8_t(only_model), w, f.cols) ? only_model : 0)) continue;
-      std::vector<uint8_t> stream;
+      candidates.push_back(model);
+    }
+    auto coded_size = [&](uint8_t model, uint64_t count, std::vector<uint8_t>& stream) {
+      stream.clear();
       RangeEncoder rc(stream);
       EncodeSide side{rc};
-      code_field(side, field.data(), f.count, f.cols, w, model, nullptr);
+      code_field(side, field.data(), count, f.cols, w, model, nullptr);
       rc.finish();
-      if (first || stream.size() < best.size()) {
-        best = std::move(stream);
+      return stream.size();
+    };
+    std::vector<uint8_t> stream, best;
+    // A long field: rank the models on its first kTrialValues values, code it whole with the best few
+    // (the same choice on every run: this only saves the writer time).
+    if (f.count > 2 * kTrialValues && candidates.size() > kFinalists) {
+      std::vector<std::pair<size_t, uint8_t>> ranked;
+      for (uint8_t model : candidates) ranked.push_back({coded_size(model, kTrialValues, stream), model});
+      std::stable_sort(ranked.begin(), ranked.end());
+      candidates.clear();
+      for (size_t k = 0; k < kFinalists; ++k) candidates.push_back(ranked[k].second);
+      std::sort(candidates.begin(), candidates.end());
+    }
+    uint8_t best_model = 0;
+    for (uint8_t model : candidates) {
+      coded_size(model, f.count, stream);
+      if (best.empty() || stream.size() < best.size()) {
+        best.swap(stream);
         best_model = model;
       }
-      first = false;
     }
     out.push_back(best_model);
     if (&f != &shape.fields.back()) put_varint(out, best.size());  // the last stream ends the section
