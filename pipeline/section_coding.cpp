@@ -16,7 +16,7 @@ namespace {
 //   bits 1-2  literal: 0 bit tree, 1 difference to a prediction, 2 the value as an integer
 //   bits 3-4  prediction (literal 1): 0 left (else above), 1 above (else left), 2 median edge detector,
 //             3 slope (2 left - second left)
-//   bit 5     separate literal models per column (rows of at most kMaxColumnContexts values)
+//   bit 5     separate flag and literal models per column (rows of at most kMaxColumnContexts values)
 //   bit 6     separate difference models per activity class of the neighbourhood (literal 1)
 enum Literal : uint8_t { Tree = 0, Delta = 1, Plain = 2 };
 enum Prediction : uint8_t { Left = 0, Above = 1, Median = 2, Slope = 3 };
@@ -61,11 +61,11 @@ void put_bits(uint8_t* p, uint64_t pos, int w, uint32_t v) {
 // over each of its two low bytes.
 struct Models {
   Models(int w, size_t contexts)
-      : w(w), top(contexts, SymbolModel(w > 16 ? w - 16 : w)), mid(8), low(8), integer(2 * kActivityClasses * contexts) {
+      : w(w), same_left(6 * contexts), same_above(3 * contexts), top(contexts, SymbolModel(w > 16 ? w - 16 : w)), mid(8), low(8), integer(2 * kActivityClasses * contexts) {
   }
   int w;
-  BitModel same_left[6];
-  BitModel same_above[3];
+  std::vector<BitModel> same_left;   // per (context, state, above equals left)
+  std::vector<BitModel> same_above;  // per (context, state)
   std::vector<SymbolModel> top;  // per context (column)
   SymbolModel mid, low;
   std::vector<IntegerModel> integer;  // per (context, activity class, whether a neighbour predicts the value)
@@ -126,15 +126,15 @@ void code_field(Side& side, uint8_t* bits, uint64_t count, uint64_t cols, int w,
     uint32_t v = 0;
     bool done = false;
     if (flags && has_left) {
-      const unsigned ctx = state * 2 + (has_above && above == left ? 1 : 0);
-      if (side.bit(m.same_left[ctx], truth == left)) {
+      const size_t flag_ctx = ctx * 6 + state * 2 + (has_above && above == left ? 1 : 0);
+      if (side.bit(m.same_left[flag_ctx], truth == left)) {
         v = left;
         done = true;
         state = 0;
       }
     }
     if (flags && !done && has_above && !(has_left && above == left)) {
-      if (side.bit(m.same_above[state], truth == above)) {
+      if (side.bit(m.same_above[ctx * 3 + state], truth == above)) {
         v = above;
         done = true;
         state = 1;
