@@ -190,7 +190,7 @@ TEST_CASE("a compressed synthetic material: range coded file much smaller than r
   raw_packed.range_coding = zstd.range_coding = false;
   const auto raw = serialize_database(db, raw_packed), z = serialize_database(db, zstd), coded = serialize_database(db);
   MESSAGE("wood 24 x 24: raw packed " << raw.size() << " bytes, zstd " << z.size() << ", range coded " << coded.size());
-  CHECK(double(raw.size()) / double(coded.size()) > 1.25);  // measured +40 %; acceptance +20 %
+  CHECK(double(raw.size()) / double(coded.size()) > 1.25);  // measured +48 %; acceptance +20 %
   CHECK(coded.size() < z.size());
   const DatabaseHead head = parse_head(coded.data(), coded.size());
   int range_coded = 0;
