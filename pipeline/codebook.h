@@ -99,6 +99,7 @@ struct VersionMark {
   size_t materials = 0;
   ValueCoding p1_values, c_values, p2_scale, p3_scale, p4_scale, p6_scale;
   uint8_t zstd_level = 0;  // 0: sections stored raw packed; else zstd at this level where it is smaller
+  uint8_t range_coding = 0;  // 1: the modelled range coder (section encoding 2) too, smallest wins
 
   bool operator==(const VersionMark& o) const = default;
 };

@@ -14,6 +14,7 @@
 
 #include "pipeline/error.h"
 #include "pipeline/packing.h"
+#include "pipeline/section_coding.h"
 
 namespace btfvq {
 
@@ -165,6 +166,7 @@ VersionMark next_codings(const Database& db, const PackSettings& s) {
   if (s.zstd_level < 0 || s.zstd_level > ZSTD_maxCLevel())
     throw InputError("zstd level " + std::to_string(s.zstd_level) + " is out of range 0.." + std::to_string(ZSTD_maxCLevel()));
   v.zstd_level = uint8_t(s.zstd_level);
+  v.range_coding = s.range_coding ? 1 : 0;
   return v;
 }
 
@@ -311,22 +313,75 @@ struct Stored {
   std::vector<uint8_t> bytes;
 };
 
-// Encoding 1 (zstd) where it is smaller and within the expansion bound, else encoding 0.
-Stored encode_section(std::vector<uint8_t> raw, int level) {
-  if (level > 0 && !raw.empty()) {
+// The fields of a section (for encoding 2), from the section kind and its header bytes at p (raw or
+// stored: encoding 2 keeps the header verbatim).
+SectionShape section_shape(const SectionEntry& e, const AngularGrid& g, const uint8_t* p, size_t n,
+                           const std::string& where) {
+  ByteReader r(p, n, where);
+  SectionShape s;
+  if (e.kind == SectionKind::Material) {
+    const uint16_t len = r.u16();
+    r.bytes(len);
+    const uint64_t w = r.u32(), h = r.u32();
+    r.u8();
+    r.u64();
+    s.header_bytes = r.position();
+    s.fields = {{FieldShape::Index, w * h, std::max<uint64_t>(w, 1)}, {FieldShape::Values, w * h, std::max<uint64_t>(w, 1)}};
+    return s;
+  }
+  r.bytes(12);
+  const uint64_t rows = r.u32();
+  s.header_bytes = r.position();
+  const uint64_t cols = e.codebook == CodebookId::C                                           ? 2
+                        : (e.codebook == CodebookId::P1 || e.codebook == CodebookId::I1)      ? uint64_t(g.n_beta)
+                        : (e.codebook == CodebookId::I2 || e.codebook == CodebookId::P2)      ? uint64_t(g.n_alpha)
+                        : e.codebook == CodebookId::P3                                        ? uint64_t(g.n_theta_v)
+                        : e.codebook == CodebookId::P4                                        ? uint64_t(g.n_phi_v)
+                                                                                              : 1;
+  switch (e.codebook) {
+    case CodebookId::P1:
+    case CodebookId::C: s.fields = {{FieldShape::Values, rows * cols, cols}}; break;
+    case CodebookId::I1:
+    case CodebookId::I2: s.fields = {{FieldShape::Index, rows * cols, cols}}; break;
+    case CodebookId::M: s.fields = {{FieldShape::Index, rows, 1}, {FieldShape::Index, rows, 1}}; break;
+    default: s.fields = {{FieldShape::Index, rows * cols, cols}, {FieldShape::Values, rows * cols, cols}};
+  }
+  return s;
+}
+
+bool within_bomb_bound(uint64_t raw, uint64_t stored) { return raw <= kZstdMaxRatio * stored + kZstdSlack; }
+
+// The smallest of encoding 0 (raw packed), 1 (zstd at `level`, if > 0) and 2 (modelled range coder,
+// if `range_coding`), each only within the expansion bound; ties go to the lower encoding.
+Stored encode_section(std::vector<uint8_t> raw, const SectionEntry& e, const AngularGrid& g, int level,
+                      bool range_coding) {
+  Stored best{0, raw};
+  if (raw.empty()) return best;
+  if (level > 0) {
     std::vector<uint8_t> z(ZSTD_compressBound(raw.size()));
     const size_t n = ZSTD_compress(z.data(), z.size(), raw.data(), raw.size(), level);
-    if (!ZSTD_isError(n) && n < raw.size() && raw.size() <= kZstdMaxRatio * n + kZstdSlack) {
+    if (!ZSTD_isError(n) && n < best.bytes.size() && within_bomb_bound(raw.size(), n)) {
       z.resize(n);
-      return {1, std::move(z)};
+      best = {1, std::move(z)};
     }
   }
-  return {0, std::move(raw)};
+  if (range_coding) {
+    std::optional<std::vector<uint8_t>> m;
+    try {
+      m = model_encode(raw, section_shape(e, g, raw.data(), raw.size(), "section"));
+    } catch (const CorruptError&) {
+      m.reset();  // a header the shape cannot read: not this encoding
+    }
+    if (m && m->size() < best.bytes.size() && within_bomb_bound(raw.size(), m->size())) best = {2, std::move(*m)};
+  }
+  return best;
 }
 
 // The raw packed bytes of a section whose checksum has been verified.
-std::vector<uint8_t> decode_section(const SectionEntry& e, const uint8_t* p, ByteReader& r) {
+std::vector<uint8_t> decode_section(const SectionEntry& e, const AngularGrid& g, const uint8_t* p, ByteReader& r) {
   if (e.encoding == 0) return {p, p + e.length};
+  if (e.encoding == 2)
+    return model_decode(p, size_t(e.length), section_shape(e, g, p, size_t(e.length), r.where()), e.raw_length, r.where());
   const unsigned long long size = ZSTD_getFrameContentSize(p, size_t(e.length));
   if (size != e.raw_length) r.fail("the zstd frame does not hold the " + std::to_string(e.raw_length) + " bytes the table says");
   std::vector<uint8_t> raw(size_t(e.raw_length));
@@ -436,7 +491,7 @@ std::vector<uint8_t> serialize_database(const Database& input, const PackSetting
         const uint8_t* p = previous->data() + e.offset;
         ByteReader r(p, size_t(e.length), "previous");
         if (!same_section(e, entries[i]) || crc64(p, size_t(e.length)) != e.checksum) break;
-        if (decode_section(e, p, r) != payloads[i]) continue;
+        if (decode_section(e, db.codebooks.grid, p, r) != payloads[i]) continue;
         stored[i] = Stored{e.encoding, std::vector<uint8_t>(p, p + e.length)};
         done[i] = true;
       }
@@ -448,7 +503,8 @@ std::vector<uint8_t> serialize_database(const Database& input, const PackSetting
   for (const auto& e : entries) head += kEntryFixedBytes + e.material.size();
   uint64_t offset = head;
   for (size_t i = 0; i < entries.size(); ++i) {
-    if (!done[i]) stored[i] = encode_section(payloads[i], db.versions[entries[i].version - 1].zstd_level);
+    const VersionMark& mark = db.versions[entries[i].version - 1];
+    if (!done[i]) stored[i] = encode_section(payloads[i], entries[i], db.codebooks.grid, mark.zstd_level, mark.range_coding != 0);
     entries[i].offset = offset;
     entries[i].encoding = stored[i].encoding;
     entries[i].length = stored[i].bytes.size();
@@ -476,7 +532,8 @@ std::vector<uint8_t> serialize_database(const Database& input, const PackSetting
       w.u8(codings(mark, k)->bits);
     }
     w.u8(mark.zstd_level);
-    for (int k = 0; k < 3; ++k) w.u8(0);
+    w.u8(mark.range_coding);
+    for (int k = 0; k < 2; ++k) w.u8(0);
   }
   for (const auto& e : entries) {
     w.u16(uint16_t(e.kind));
@@ -564,7 +621,9 @@ DatabaseHead parse_head(const uint8_t* data, size_t n, const std::string& where)
     }
     mark.zstd_level = r.u8();
     if (mark.zstd_level > ZSTD_maxCLevel()) r.fail("version " + std::to_string(v + 1) + " has an invalid zstd level");
-    if (r.u8() != 0 || r.u16() != 0) r.fail("version " + std::to_string(v + 1) + ": reserved bytes are not zero");
+    mark.range_coding = r.u8();
+    if (mark.range_coding > 1) r.fail("version " + std::to_string(v + 1) + " has an unknown range coding flag");
+    if (r.u16() != 0) r.fail("version " + std::to_string(v + 1) + ": reserved bytes are not zero");
     for (CodebookId id : kAllCodebooks)
       if (rows_in(mark, id) < rows_in(prev, id))
         r.fail("version " + std::to_string(v + 1) + " shrinks code-book " + codebook_name(id));
@@ -612,9 +671,9 @@ DatabaseHead parse_head(const uint8_t* data, size_t n, const std::string& where)
     } else if (id != kNoCodebook || len == 0 || !names.insert(e.material).second) {
       r.fail(s + ": material entry without a name, with a code-book id, or a duplicate name");
     }
-    if (e.encoding > 1) r.fail(s + ": encoding " + std::to_string(e.encoding) + " is not supported by this reader");
+    if (e.encoding > 2) r.fail(s + ": encoding " + std::to_string(e.encoding) + " is not supported by this reader");
     if (e.encoding == 0 ? e.raw_length != e.length
-                        : (e.raw_length > kZstdMaxRatio * e.length + kZstdSlack || e.raw_length > 0xFFFFFFFFu))
+                        : (!within_bomb_bound(e.raw_length, e.length) || e.raw_length > 0xFFFFFFFFu))
       r.fail(s + ": raw length " + std::to_string(e.raw_length) + " does not fit the stored length " +
              std::to_string(e.length));
     if (e.offset != offset || e.length > h.file_size - offset)
@@ -635,6 +694,17 @@ std::vector<SectionEntry> sections_since(const DatabaseHead& head, uint32_t have
   return out;
 }
 
+std::vector<uint8_t> decode_section_bytes(const SectionEntry& entry, const AngularGrid& grid,
+                                          const std::vector<uint8_t>& stored) {
+  ByteReader check(stored.data(), stored.size(), describe(entry, 0));
+  if (stored.size() != entry.length) check.fail("has " + std::to_string(stored.size()) + " bytes, the table says " + std::to_string(entry.length));
+  if (crc64(stored.data(), stored.size()) != entry.checksum) check.fail("checksum does not match (corrupted)");
+  if (entry.encoding > 2 || (entry.encoding == 0 && entry.raw_length != entry.length) ||
+      (entry.encoding != 0 && !within_bomb_bound(entry.raw_length, entry.length)))
+    check.fail("unsupported encoding or raw length");
+  return decode_section(entry, grid, stored.data(), check);
+}
+
 Database parse_database(const std::vector<uint8_t>& bytes, const std::string& where) {
   const DatabaseHead h = parse_head(bytes.data(), bytes.size(), where);
   if (h.file_size != bytes.size())
@@ -652,7 +722,7 @@ Database parse_database(const std::vector<uint8_t>& bytes, const std::string& wh
       const uint8_t* p = bytes.data() + e.offset;
       ByteReader check(p, size_t(e.length), where + ": " + describe(e, next));
       if (crc64(p, size_t(e.length)) != e.checksum) check.fail("checksum does not match (corrupted)");
-      const std::vector<uint8_t> raw = decode_section(e, p, check);
+      const std::vector<uint8_t> raw = decode_section(e, h.grid, p, check);
       ByteReader r(raw.data(), raw.size(), check.where());
       if (e.kind == SectionKind::Codebook) decode_chunk(r, db.codebooks, e.codebook, v + 1, prev, mark);
       else

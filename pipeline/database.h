@@ -26,9 +26,12 @@ struct PackSettings {
   ValueCoding p3_scale{ValueCoding::Log, 8};
   ValueCoding p4_scale{ValueCoding::Log, 8};
   ValueCoding p6_scale{ValueCoding::Log, 8};
-  // Entropy coding beyond the paper: each section of the new version is zstd-compressed at this level
-  // (encoding 1) when that is smaller; 0 stores every section raw packed (encoding 0).
+  // Entropy coding beyond the paper: each section of the new version is stored as the smallest of
+  // raw packed (encoding 0), zstd at this level (encoding 1; 0 = not tried) and, with range_coding,
+  // the modelled range coder (encoding 2, pipeline/section_coding.h). zstd_level 0 and range_coding
+  // false store every section raw packed.
   int zstd_level = 19;
+  bool range_coding = true;
 
   // 32-bit floats everywhere: an imported original (BTFBASE) database is stored without loss.
   static PackSettings lossless();
@@ -44,7 +47,7 @@ enum class SectionKind : uint16_t { Codebook = 1, Material = 2 };
 // One row of the section table.
 struct SectionEntry {
   SectionKind kind = SectionKind::Codebook;
-  uint16_t encoding = 0;  // 0 = raw packed, 1 = zstd frame of the raw packed bytes
+  uint16_t encoding = 0;  // 0 = raw packed, 1 = zstd frame of the raw packed bytes, 2 = modelled range coder
   uint32_t version = 0;   // the database version that added this section
   CodebookId codebook = CodebookId::P1;  // kind Codebook
   std::string material;                  // kind Material
@@ -110,6 +113,11 @@ void publish_version(Database& db, const PackSettings& settings = {});
 // if a newer libzstd would compress them differently. An unusable `previous` is ignored.
 std::vector<uint8_t> serialize_database(const Database& db, const PackSettings& settings = {},
                                         const std::vector<uint8_t>* previous = nullptr);
+// One section on its own (random access: its stored bytes fetched by range using the head): checks
+// the checksum and decodes encoding 0, 1 or 2 to the raw packed bytes (docs/format.md). Throws
+// CorruptError naming the section on any problem.
+std::vector<uint8_t> decode_section_bytes(const SectionEntry& entry, const AngularGrid& grid,
+                                          const std::vector<uint8_t>& stored);
 // Checks everything (see read_database) and returns the database with its versions.
 Database parse_database(const std::vector<uint8_t>& bytes, const std::string& where = "database");
 
