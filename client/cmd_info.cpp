@@ -56,7 +56,7 @@ void print_database_info(std::ostream& out, const std::string& path, const Datab
   out << "sections:   " << h.sections.size() << "\n";
   for (const auto& s : h.sections)
     out << "  v" << s.version << "\t" << (s.kind == SectionKind::Material ? "material " + s.material : codebook_name(s.codebook))
-        << "\toffset " << s.offset << "\t" << with_thousands(s.length) << " bytes" << (s.encoding == 1 ? " (zstd)" : "")
+        << "\toffset " << s.offset << "\t" << with_thousands(s.length) << " bytes" << (s.encoding == 1 ? " (zstd)" : s.encoding == 2 ? " (range coded)" : "")
         << "\n";
 }
 
