@@ -57,8 +57,10 @@ void ProxyIndex::assign(uint32_t id) {
   if (leaders_.empty() || best > radius_ * radius_) {
     leaders_.push_back(id);
     lists_.push_back({id});
+    list_vectors_.emplace_back(v, v + dim_);
   } else {
     lists_[at].push_back(id);
+    list_vectors_[at].insert(list_vectors_[at].end(), v, v + dim_);
   }
 }
 
@@ -67,6 +69,7 @@ void ProxyIndex::rebuild() {
     radius_ *= 2;
     leaders_.clear();
     lists_.clear();
+    list_vectors_.clear();
     for (uint32_t id = 0; id < size(); ++id) assign(id);
   }
 }
@@ -82,9 +85,13 @@ void ProxyIndex::nearest(const float* q, int k, int probes, std::vector<uint32_t
   std::partial_sort(ranked.begin(), ranked.begin() + std::ptrdiff_t(p), ranked.end());
   thread_local std::vector<Ranked> members;
   members.clear();
-  for (size_t j = 0; j < p; ++j)
-    for (uint32_t id : lists_[ranked[j].id])
-      members.push_back({distance2(q, vectors_.data() + size_t(id) * size_t(dim_)), id});
+  const size_t budget = std::max<size_t>(256, 16 * size_t(k));
+  for (size_t j = 0; j < p && members.size() < budget; ++j) {
+    const std::vector<uint32_t>& ids = lists_[ranked[j].id];
+    const float* v = list_vectors_[ranked[j].id].data();
+    const size_t m = std::min(ids.size(), budget - members.size());
+    for (size_t i = 0; i < m; ++i) members.push_back({distance2(q, v + i * size_t(dim_)), ids[i]});
+  }
   const size_t n = std::min(members.size(), size_t(k));
   std::partial_sort(members.begin(), members.begin() + std::ptrdiff_t(n), members.end());
   for (size_t i = 0; i < n; ++i) out.push_back(members[i].id);

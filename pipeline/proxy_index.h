@@ -27,7 +27,8 @@ class ProxyIndex {
   // Adds a vector; its id is the previous size().
   void insert(const float* v);
   // Up to k ids, nearest first (ties to the lower id), among the lists of the `probes` leaders
-  // nearest to q. An approximate search: an entry in a farther list is never returned.
+  // nearest to q, scanning at most max(256, 16 k) members (dense regions of real data gather tens of
+  // thousands of entries in one list). An approximate search: an entry not scanned is never returned.
   void nearest(const float* q, int k, int probes, std::vector<uint32_t>& out) const;
 
  private:
@@ -40,6 +41,7 @@ class ProxyIndex {
   std::vector<float> vectors_;                // size() x dim
   std::vector<uint32_t> leaders_;             // ids of the leaders
   std::vector<std::vector<uint32_t>> lists_;  // per leader: ids of its members (itself first)
+  std::vector<std::vector<float>> list_vectors_;  // per leader: its members' vectors, contiguous
 };
 
 }  // namespace btfvq

@@ -41,11 +41,11 @@ std::vector<uint32_t> brute_force(const std::vector<float>& v, int dim, const fl
 
 TEST_CASE("probing every list gives the exact nearest neighbours, nearest first") {
   const int dim = 11;
-  const auto v = random_vectors(3000, dim, 7);
-  ProxyIndex index(dim, 0.01f);  // far too small: the index must widen its radius itself
+  const auto v = random_vectors(250, dim, 7);  // within the scan budget (256 members)
+  ProxyIndex index(dim, 0.001f);  // far too small: the index must widen its radius itself
   for (size_t i = 0; i < v.size() / dim; ++i) index.insert(v.data() + i * dim);
-  CHECK(index.size() == 3000);
-  CHECK(index.leaders() <= 64 + 2 * 55);
+  CHECK(index.size() == 250);
+  CHECK(index.leaders() <= 64 + 2 * 15);
   const auto q = random_vectors(10, dim, 99);
   std::vector<uint32_t> got;
   for (int i = 0; i < 10; ++i) {
@@ -70,6 +70,24 @@ TEST_CASE("few probes still find the neighbours of a query inside a cluster") {
     for (uint32_t id : got) found += std::count(truth.begin(), truth.end(), id);
   }
   CHECK(found >= 50 * 8 * 9 / 10);
+}
+
+TEST_CASE("a dense region costs a bounded scan and still returns near entries") {
+  const int dim = 4;
+  std::vector<float> v;
+  for (int i = 0; i < 5000; ++i)
+    for (int d = 0; d < dim; ++d) v.push_back(float((i * 7 + d * 13) % 100) * 1e-3f);  // one tight cluster
+  ProxyIndex index(dim, 10.0f);  // one list holds everything
+  for (int i = 0; i < 5000; ++i) index.insert(v.data() + i * dim);
+  CHECK(index.leaders() == 1);
+  std::vector<uint32_t> got;
+  const float q[dim] = {0.05f, 0.05f, 0.05f, 0.05f};
+  index.nearest(q, 8, 8, got);
+  REQUIRE(got.size() == 8);
+  for (uint32_t id : got) CHECK(id < 256);  // only the first 256 members were scanned
+  float d0 = 0;
+  for (int d = 0; d < dim; ++d) d0 += (v[got[0] * dim + d] - q[d]) * (v[got[0] * dim + d] - q[d]);
+  CHECK(d0 < 4 * 0.05f * 0.05f);
 }
 
 TEST_CASE("an empty index returns nothing; a bad dimension or radius is an error") {
