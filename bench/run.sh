@@ -18,7 +18,7 @@ mkdir -p "$sections"
 work=$(mktemp -d /tmp/btfvq-bench.XXXXXX)
 trap 'rm -rf "$work"' EXIT
 commit=$(cd "$root" && git rev-parse --short HEAD 2>/dev/null || echo unknown)
-if [ -n "$(cd "$root" && git status --porcelain --untracked-files=no 2>/dev/null)" ]; then commit="$commit (dirty)"; fi
+if [ -n "$(cd "$root" && git status --porcelain --untracked-files=no -- . ':!BENCHMARKS.md' ':!bench/results' 2>/dev/null)" ]; then commit="$commit (dirty)"; fi
 for b in "$bin"/bench_*; do
   [ -x "$b" ] || continue
   name=$(basename "$b")
