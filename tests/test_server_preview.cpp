@@ -14,6 +14,7 @@
 #include <nlohmann/json.hpp>
 #include <thread>
 
+#include "support/server_process.h"
 #include "support/test_paths.h"
 
 using namespace btfvq::test;
@@ -21,41 +22,6 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 namespace {
-
-// The server binary on a free port over a scratch data directory; SIGTERM on scope exit.
-class ServerProcess {
- public:
-  explicit ServerProcess(const fs::path& data) : port_(free_loopback_port()) {
-    const std::string server = (bin_dir() / "btfvq-server").string();
-    const std::string listen = "127.0.0.1:" + std::to_string(port_), dir = data.string();
-    const std::string log = data.string() + ".log";
-    pid_ = ::fork();
-    REQUIRE(pid_ >= 0);
-    if (pid_ == 0) {
-      if (FILE* f = std::freopen(log.c_str(), "a", stderr)) (void)f;
-      ::execl(server.c_str(), server.c_str(), "--listen", listen.c_str(), "--data", dir.c_str(), "--workers", "1",
-              static_cast<char*>(nullptr));
-      ::_exit(127);
-    }
-    httplib::Client c(url());
-    for (int i = 0; i < 1000; ++i) {
-      auto r = c.Get("/healthz");
-      if (r && r->status == 200) return;
-      std::this_thread::sleep_for(std::chrono::milliseconds(10));
-    }
-    FAIL("btfvq-server did not answer /healthz");
-  }
-  ~ServerProcess() {
-    ::kill(pid_, SIGTERM);
-    int status = 0;
-    ::waitpid(pid_, &status, 0);
-  }
-  std::string url() const { return "http://127.0.0.1:" + std::to_string(port_); }
-
- private:
-  int port_;
-  pid_t pid_ = -1;
-};
 
 struct Image {
   int width = 0, height = 0, channels = 0;
@@ -81,7 +47,7 @@ Image decode_png(const std::string& bytes) {
 
 TEST_CASE("GET .../materials/{name}/preview.png: the material on a sphere, lit, on a dark background") {
   const fs::path dir = scratch_dir("server-preview");
-  ServerProcess server(dir / "data");
+  ServerProcess server(dir / "data", free_loopback_port());
   httplib::Client c(server.url());
   c.set_read_timeout(60);
   const json job = {{"database", "shop"},
