@@ -329,31 +329,6 @@ void split_over_cores(size_t n, F&& f) {
   for (auto& t : helpers) t.join();
 }
 
-// Maps `buffer` for the host (PoCL's CPU device hands out its own memory: no copy) and unmaps it
-// when done.
-template <class T>
-class Mapped {
- public:
-  Mapped(cl::CommandQueue& queue, const cl::Buffer& buffer, cl_map_flags flags, size_t count)
-      : queue_(queue), buffer_(buffer) {
-    ptr_ = static_cast<T*>(queue.enqueueMapBuffer(buffer, CL_TRUE, flags, 0, count * sizeof(T)));
-  }
-  ~Mapped() {
-    try {
-      queue_.enqueueUnmapMemObject(buffer_, ptr_);
-    } catch (const cl::Error&) {  // nothing sensible to do in a destructor; the buffer stays mapped
-    }
-  }
-  Mapped(const Mapped&) = delete;
-  Mapped& operator=(const Mapped&) = delete;
-  T* get() const { return ptr_; }
-
- private:
-  cl::CommandQueue& queue_;
-  const cl::Buffer& buffer_;
-  T* ptr_ = nullptr;
-};
-
 }  // namespace
 
 std::vector<Rgb> Decoder::decode_opencl(const std::vector<DecodeQuery>& queries) const {

@@ -6,10 +6,11 @@
 //  - Pruned: per texel, Encoder::encode_frozen(): candidates in proxy order, each abandoned as soon
 //    as more than 2% of its SSIM values fall below the best score so far. Little work per texel,
 //    but branchy and sequential: the CPU path when no OpenCL device exists.
-//  - Batched: a batch of texels x candidates scored at once by kernels/search.cl (or its C++
-//    reference), each score bracketed by a histogram bin; the host then settles exactly the few
-//    candidates whose brackets reach the best one. Same chosen entries and scales as Pruned (the
-//    brackets are conservative and the settling is Pruned's own search).
+//  - Batched: a batch of texels searched at once by kernels/search.cl (or its C++ reference), one
+//    texel per work-item with the same abandonment, every SSIM value of a row one vector expression;
+//    each completed candidate's score is bracketed by a histogram bin, and the host then settles
+//    exactly the few candidates whose brackets reach the best one. Same chosen entries and scales as
+//    Pruned (the brackets are conservative and the settling is Pruned's own search).
 #include <cstddef>
 #include <memory>
 #include <vector>
@@ -26,6 +27,7 @@ struct SearchStats {
   size_t scored = 0;    // (texel, candidate) pairs scored by the batch
   size_t settled = 0;   // candidates then compared exactly on the host
   double batch_seconds = 0, settle_seconds = 0;
+  double device_seconds = 0;  // of batch_seconds: scoring alone (the kernel or its reference)
 };
 
 class FrozenSearch {
@@ -37,8 +39,10 @@ class FrozenSearch {
   FrozenSearch(const FrozenSearch&) = delete;
   FrozenSearch& operator=(const FrozenSearch&) = delete;
 
-  // The fastest path measured on this kind of machine (see frozen_search.cpp).
-  static SearchPath preferred();
+  // The fastest path measured on this kind of machine for this grid (see frozen_search.cpp).
+  static SearchPath preferred(const AngularGrid& grid, const SimilaritySettings& settings);
+  // Whether kernels/search.cl's padded rows hold planes of this grid at this window radius.
+  static bool kernel_fits(const AngularGrid& grid, int radius);
 
   SearchPath path() const { return path_; }
   const SearchStats& stats() const { return stats_; }
@@ -46,8 +50,9 @@ class FrozenSearch {
   // Encodes n texels (3 x grid.samples() coding-space floats each, contiguous) into out[0..n).
   void encode(const float* texels, size_t n, P6Entry* out);
 
-  // The histogram bin of every (texel, candidate) pair, as the batch computes it (for tests):
-  // bins[t * slots + k] for candidates[t * slots + k].
+  // What the batch computes for every (texel, candidate) pair, candidates of a texel in the given
+  // order (for tests): bins[t * slots + k] for candidates[t * slots + k] is the histogram bin of its
+  // score, or -1 if it was abandoned (its score fell below a previous candidate's lower bound).
   std::vector<int> bins(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates,
                         size_t slots);
 
@@ -58,6 +63,10 @@ class FrozenSearch {
   struct Device;
   void encode_pruned(const float* texels, size_t n, P6Entry* out);
   void encode_batched(const float* texels, size_t n, P6Entry* out);
+  void bins_reference(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates, size_t slots,
+                      std::vector<int>& out) const;
+  void bins_opencl(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates, size_t slots,
+                   std::vector<int>& out) const;
   std::vector<float> query_block(const FrozenQuery& q) const;
   template <class F>
   void parallel(size_t n, F&& f) const;

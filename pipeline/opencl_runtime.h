@@ -72,6 +72,32 @@ class ComputeDevice {
   std::map<std::string, cl::Program> programs_;
 };
 
+// Maps `buffer` for the host (PoCL's CPU device hands out its own memory: no copy) and unmaps it
+// when done.
+template <class T>
+class Mapped {
+ public:
+  Mapped(cl::CommandQueue& queue, const cl::Buffer& buffer, cl_map_flags flags, size_t count)
+      : queue_(queue), buffer_(buffer) {
+    ptr_ = static_cast<T*>(queue.enqueueMapBuffer(buffer, CL_TRUE, flags, 0, count * sizeof(T)));
+  }
+  ~Mapped() {
+    try {
+      queue_.enqueueUnmapMemObject(buffer_, ptr_);
+    } catch (const cl::Error&) {  // nothing sensible to do in a destructor; the buffer stays mapped
+    }
+  }
+  Mapped(const Mapped&) = delete;
+  Mapped& operator=(const Mapped&) = delete;
+  T* get() const { return ptr_; }
+
+ private:
+  cl::CommandQueue& queue_;
+  const cl::Buffer& buffer_;
+  T* ptr_ = nullptr;
+};
+
+
 // Runs `f`, turning a cl::Error into a DeviceError that names `what` and the OpenCL error.
 template <class F>
 auto opencl_call(const char* what, F&& f) -> decltype(f()) {

@@ -25,11 +25,11 @@ ScheduleSettings ScheduleSettings::from(const ParameterDictionary& d) {
   return s;
 }
 
-SearchPath ScheduleSettings::search_path() const {
+SearchPath ScheduleSettings::search_path(const AngularGrid& grid, const SimilaritySettings& similarity) const {
   if (search == "pruned") return SearchPath::Pruned;
   if (search == "batched")
     return ComputeDevice::get().uses_opencl() ? SearchPath::BatchedOpenCL : SearchPath::BatchedReference;
-  return FrozenSearch::preferred();
+  return FrozenSearch::preferred(grid, similarity);
 }
 
 CodebookSizes CodebookSizes::of(const Codebooks& k) {
@@ -117,7 +117,7 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
       if (phase < 3) {
         for (size_t i = 0; i < n; ++i) store(i, encoder.encode_growing(buffer.data() + i * 3 * samples));
       } else {
-        if (!frozen) frozen = std::make_unique<FrozenSearch>(encoder, schedule.search_path(), schedule.threads);
+        if (!frozen) frozen = std::make_unique<FrozenSearch>(encoder, schedule.search_path(encoder.codebooks().grid, encoder.settings()), schedule.threads);
         std::vector<P6Entry> entries(n);
         frozen->encode(buffer.data(), n, entries.data());
         for (size_t i = 0; i < n; ++i) store(i, entries[i]);

@@ -27,7 +27,7 @@ struct ScheduleSettings {
   // Phase 3 search: "auto" (the fastest measured: pruned for now), "pruned", "batched"
   // (on the compute device's path: OpenCL or its C++ reference). All give the same entries.
   std::string search = "auto";
-  SearchPath search_path() const;
+  SearchPath search_path(const AngularGrid& grid, const SimilaritySettings& similarity) const;
 
   // Reads the "schedule" section.
   static ScheduleSettings from(const ParameterDictionary& d);
