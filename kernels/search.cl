@@ -29,6 +29,7 @@
 
 #define SEARCH_BINS 512
 #define SEARCH_MAX_ROWS 30
+#define SEARCH_MAX_PLANES 256
 // Lanes that hold no sample get this numerator (and denominator 1): above every SSIM value and every
 // bin edge, never counted.
 #define SEARCH_IDLE 4.0f
@@ -92,6 +93,22 @@ int search_percentile_bin(__global const float16* terms, int rows16, int keep) {
   return lo;
 }
 
+// Sorts the planes by how many of the completed candidate's values fall into bins 0..bin, most
+// first (stable: equal counts keep plane order).
+void search_order_planes(__global const float16* terms, int planes, int rows, int bin, uchar* order) {
+  int low[SEARCH_MAX_PLANES];
+  for (int j = 0; j < planes; ++j) low[j] = search_count_upto(terms + j * 3 * rows * 2, 3 * rows, bin);
+  for (int i = 1; i < planes; ++i) {
+    const uchar j = order[i];
+    int at = i;
+    while (at > 0 && low[order[at - 1]] < low[j]) {
+      order[at] = order[at - 1];
+      --at;
+    }
+    order[at] = j;
+  }
+}
+
 __kernel void search_texels(__global const float16* queries, __global const float* consts,
                             __global const unsigned* candidates, int texels, int slots,
                             __global const unsigned* plane_p2, __global const unsigned* plane_i2,
@@ -109,6 +126,11 @@ __kernel void search_texels(__global const float16* queries, __global const floa
   const int16 used = isgreaterequal(lane, (float16)(float)radius) & isless(lane, (float16)(float)(radius + cols));
   // Best score so far, lowered by the bracket margin (pipeline/frozen_search.cpp kMargin).
   float floor = -1e30f;
+  // Planes in the order they are scored: once the first candidate completes, the planes that hold
+  // most of its lowest values come first, since that is where the other candidates fail too, and a
+  // candidate is abandoned once enough of its values are low (the set of values is the same).
+  uchar order[SEARCH_MAX_PLANES];
+  for (int j = 0; j < planes; ++j) order[j] = (uchar)j;
   for (int k = 0; k < slots; ++k) {
     const unsigned entry = candidates[(long)t * slots + k];
     const long e = (long)entry * planes;
@@ -135,7 +157,8 @@ __kernel void search_texels(__global const float16* queries, __global const floa
     // Each SSIM value is kept as numerator and denominator: v < floor is num < floor * den (den > 0),
     // no division in the loop.
     int below = 0;
-    for (int j = 0; j < planes && below < keep; ++j) {
+    for (int q = 0; q < planes && below < keep; ++q) {
+      const int j = order[q];
       int16 count = 0;
       for (int c = 0; c < 3; ++c) {
         __global const float16* x = query + (j * 3 + c) * block;
@@ -172,6 +195,7 @@ __kernel void search_texels(__global const float16* queries, __global const floa
     }
     const int bin = search_percentile_bin(terms, planes * 3 * rows, keep);
     bins[(long)t * slots + k] = bin;
+    if (k == 0) search_order_planes(terms, planes, rows, bin, order);
     const float lower = bin <= 0 ? -1e30f : (float)bin / (float)SEARCH_BINS - 5e-4f;
     floor = lower > floor ? lower : floor;
   }

@@ -17,7 +17,7 @@ namespace {
 // comparison sum the same float products in different orders (differences are ~1e-5 in SSIM).
 constexpr double kMargin = 5e-4;
 // kernels/search.cl's histogram and its private row buffer.
-constexpr int kBins = 512, kMaxRows = 30, kLanes = 16;
+constexpr int kBins = 512, kMaxRows = 30, kLanes = 16, kMaxPlanes = 256;
 // Launches of at most kChunk texels bound the padded queries and the scratch values (~1 MB per texel).
 constexpr size_t kChunk = 128;
 
@@ -73,6 +73,8 @@ void search_reference(const ReferenceInputs& in, const float* query, const float
   };
   std::vector<float> values(size_t(in.planes) * 3 * size_t(n));
   float floor = -1e30f;
+  std::vector<int> order(size_t(in.planes));
+  for (int j = 0; j < in.planes; ++j) order[size_t(j)] = j;
   for (size_t k = 0; k < slots; ++k) {
     const size_t e = candidates[k];
     float num = 0.0f, den = 0.0f;
@@ -93,8 +95,8 @@ void search_reference(const ReferenceInputs& in, const float* query, const float
       }
     const float s = den > 1e-20f ? std::max(num / den, 0.0f) : 1.0f;
     int below = 0;
-    for (int j = 0; j < in.planes && below < in.keep; ++j)
-      for (int c = 0; c < 3; ++c) {
+    for (int q = 0; q < in.planes && below < in.keep; ++q)
+      for (int c = 0, j = order[size_t(q)]; c < 3; ++c) {
         int spacing;
         const float* x = query + size_t(j * 3 + c) * 3 * size_t(n);
         const float* y = entry(e, j, c, &spacing);
@@ -130,6 +132,13 @@ void search_reference(const ReferenceInputs& in, const float* query, const float
         break;
       }
     bins[k] = bin;
+    if (k == 0) {
+      // The planes holding most of the first candidate's values in bins 0..bin first (stable).
+      std::vector<int> low(size_t(in.planes), 0);
+      for (size_t i = 0; i < values.size(); ++i)
+        low[i / (3 * size_t(n))] += std::clamp(int(values[i] * float(kBins)), 0, kBins - 1) <= bin;
+      std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return low[size_t(a)] > low[size_t(b)]; });
+    }
     floor = std::max(floor, bin <= 0 ? -1e30f : float(bin) / float(kBins) - float(kMargin));
   }
 }
@@ -144,7 +153,7 @@ struct FrozenSearch::Device {
 };
 
 bool FrozenSearch::kernel_fits(const AngularGrid& g, int radius) {
-  return PaddedPlane::fits(g.n_alpha, g.n_beta, radius);
+  return PaddedPlane::fits(g.n_alpha, g.n_beta, radius) && g.n_phi_v * g.n_theta_v <= kMaxPlanes;
 }
 
 SearchPath FrozenSearch::preferred(const AngularGrid& g, const SimilaritySettings& s) {
@@ -172,9 +181,11 @@ FrozenSearch::FrozenSearch(const Encoder& encoder, SearchPath path, int threads)
   auto& dev = ComputeDevice::get();
   if (!dev.uses_opencl()) throw DeviceError("the batched OpenCL search needs OpenCL: " + dev.description());
   if (!kernel_fits(g, radius))
-    throw DeviceError("the batched OpenCL search holds planes of at most " + std::to_string(kMaxRows) + " x " +
-                      std::to_string(kLanes - 2 * radius) + " samples at window radius " + std::to_string(radius) +
-                      " (at most 2); this grid has " + std::to_string(g.n_alpha) + " x " + std::to_string(g.n_beta));
+    throw DeviceError("the batched OpenCL search holds at most " + std::to_string(kMaxPlanes) + " planes of at most " +
+                      std::to_string(kMaxRows) + " x " + std::to_string(kLanes - 2 * radius) +
+                      " samples at window radius " + std::to_string(radius) + " (at most 2); this grid has " +
+                      std::to_string(g.n_phi_v * g.n_theta_v) + " planes of " + std::to_string(g.n_alpha) + " x " +
+                      std::to_string(g.n_beta));
   const PaddedPlane layout{g.n_alpha, g.n_beta, radius};
   const size_t n = size_t(geometry.size());
   const int hdr = encoder.dynamic() == Dynamic::HDR;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <future>
 #include <memory>
 
 #include "pipeline/error.h"
@@ -97,36 +98,64 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
   result.dissimilarity.assign(total, 0.0f);
   Encoder encoder(books, dyn, thresholds, similarity);
   const size_t tile = size_t(schedule.tile_texels);
-  std::vector<float> buffer(std::min(tile, total) * 3 * samples);
   std::unique_ptr<FrozenSearch> frozen;  // built when phase 3 starts: the code-books are final then
 
-  for (int phase = 1; phase <= 3; ++phase) {
-    const auto t0 = std::chrono::steady_clock::now();
-    const size_t begin = bounds[phase - 1], end = bounds[phase];
-    if (phase == 2) encoder.set_thresholds(thresholds.relaxed(schedule.relax_factor));
-    for (size_t at = begin; at < end; at += tile) {
-      if (cancelled && cancelled()) throw CancelledError("encoding cancelled in phase " + std::to_string(phase));
-      const size_t n = std::min(tile, end - at);
-      source(order.data() + at, n, buffer.data());
-      auto store = [&](size_t i, const P6Entry& e) {
-        const uint32_t id = order[at + i];
-        result.p6_index[id] = int32_t(e.index);
-        result.p6_scale[id] = e.scale;
-        result.dissimilarity[id] = float(e.dissimilarity);
-      };
-      if (phase < 3) {
-        for (size_t i = 0; i < n; ++i) store(i, encoder.encode_growing(buffer.data() + i * 3 * samples));
-      } else {
-        if (!frozen) frozen = std::make_unique<FrozenSearch>(encoder, schedule.search_path(encoder.codebooks().grid, encoder.settings()), schedule.threads);
-        std::vector<P6Entry> entries(n);
-        frozen->encode(buffer.data(), n, entries.data());
-        for (size_t i = 0; i < n; ++i) store(i, entries[i]);
-      }
-      if (progress) progress({phase, at + n - begin, end - begin, CodebookSizes::of(books)});
+  // Tiles of consecutive texels in Halton order, never crossing a phase boundary. The next tile is
+  // resampled on another thread while the current one is encoded (phases 1 and 2 grow the
+  // code-books on one thread), so memory holds two tiles of resampled texels at most.
+  struct Tile {
+    int phase;
+    size_t at, n;
+  };
+  std::vector<Tile> tiles;
+  for (int phase = 1; phase <= 3; ++phase)
+    for (size_t at = bounds[phase - 1]; at < bounds[phase]; at += tile)
+      tiles.push_back({phase, at, std::min(tile, bounds[phase] - at)});
+  std::vector<float> buffers[2];
+  auto resample = [&](size_t k) {
+    std::vector<float>& buffer = buffers[k % 2];
+    buffer.resize(tiles[k].n * 3 * samples);
+    source(order.data() + tiles[k].at, tiles[k].n, buffer.data());
+  };
+  std::future<void> next;
+  if (!tiles.empty()) next = std::async(std::launch::async, resample, size_t(0));
+
+  auto t0 = std::chrono::steady_clock::now();
+  for (size_t k = 0; k < tiles.size(); ++k) {
+    const auto [phase, at, n] = tiles[k];
+    next.get();  // the tile's texels (rethrows the source's error)
+    if (cancelled && cancelled()) throw CancelledError("encoding cancelled in phase " + std::to_string(phase));
+    if (k + 1 < tiles.size()) next = std::async(std::launch::async, resample, k + 1);
+    const float* texels = buffers[k % 2].data();
+    if (at == bounds[phase - 1]) {
+      t0 = std::chrono::steady_clock::now();
+      if (phase == 2) encoder.set_thresholds(thresholds.relaxed(schedule.relax_factor));
     }
-    result.report.texels[phase - 1] = end - begin;
-    result.report.sizes[phase - 1] = CodebookSizes::of(books);
-    result.report.seconds[phase - 1] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    auto store = [&](size_t i, const P6Entry& e) {
+      const uint32_t id = order[at + i];
+      result.p6_index[id] = int32_t(e.index);
+      result.p6_scale[id] = e.scale;
+      result.dissimilarity[id] = float(e.dissimilarity);
+    };
+    if (phase < 3) {
+      for (size_t i = 0; i < n; ++i) store(i, encoder.encode_growing(texels + i * 3 * samples));
+    } else {
+      if (!frozen)
+        frozen = std::make_unique<FrozenSearch>(
+            encoder, schedule.search_path(encoder.codebooks().grid, encoder.settings()), schedule.threads);
+      std::vector<P6Entry> entries(n);
+      frozen->encode(texels, n, entries.data());
+      for (size_t i = 0; i < n; ++i) store(i, entries[i]);
+    }
+    if (progress) progress({phase, at + n - bounds[phase - 1], bounds[phase] - bounds[phase - 1], CodebookSizes::of(books)});
+    if (at + n == bounds[phase]) {
+      result.report.sizes[phase - 1] = CodebookSizes::of(books);
+      result.report.seconds[phase - 1] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    }
+  }
+  for (int phase = 1; phase <= 3; ++phase) {
+    result.report.texels[phase - 1] = bounds[phase] - bounds[phase - 1];
+    if (bounds[phase] == bounds[phase - 1]) result.report.sizes[phase - 1] = CodebookSizes::of(books);
   }
   result.report.encoder = encoder.stats();
   if (frozen) {
