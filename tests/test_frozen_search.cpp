@@ -108,3 +108,36 @@ TEST_CASE("bad batches are errors") {
   FrozenSearch pruned(*g.encoder, SearchPath::Pruned, 1);
   CHECK_THROWS_AS(pruned.bins(queries, {0}, 1), InputError);
 }
+
+TEST_CASE("grids the kernel's rows cannot hold use the pruned search; forcing the kernel on them is an error") {
+  REQUIRE(ComputeDevice::get().uses_opencl());
+  AngularGrid wide;
+  wide.n_beta = 15;  // 15 samples + a border of 1 on each side > 16 lanes
+  wide.n_theta_v = 3;
+  wide.n_phi_v = 4;
+  CHECK_FALSE(FrozenSearch::kernel_fits(wide, 1));
+  CHECK(FrozenSearch::kernel_fits(wide, 0));
+  CHECK(FrozenSearch::kernel_fits(AngularGrid{}, 1));
+  CHECK(FrozenSearch::preferred(wide, SimilaritySettings{}) == SearchPath::Pruned);
+  CHECK(FrozenSearch::preferred(AngularGrid{}, SimilaritySettings{}) == SearchPath::BatchedOpenCL);
+  SimilaritySettings mse;
+  mse.metric = Metric::MSE;
+  CHECK(FrozenSearch::preferred(AngularGrid{}, mse) == SearchPath::Pruned);
+
+  SyntheticMaterial mat(4, 4, Dynamic::LDR, wide);
+  Codebooks books(mat.grid);
+  Encoder encoder(books, Dynamic::LDR, Thresholds{}, SimilaritySettings{});
+  for (uint32_t id = 0; id < 4; ++id) encoder.encode_growing(mat.texel(id).data());
+  CHECK_THROWS_AS(FrozenSearch(encoder, SearchPath::BatchedOpenCL, 1), DeviceError);
+  // The reference is scalar and holds any grid: it still picks the pruned search's entries.
+  FrozenSearch reference(encoder, SearchPath::BatchedReference, 1);
+  std::vector<float> texels;
+  for (uint32_t id = 4; id < 8; ++id) {
+    const auto x = mat.texel(id);
+    texels.insert(texels.end(), x.begin(), x.end());
+  }
+  std::vector<P6Entry> out(4);
+  reference.encode(texels.data(), 4, out.data());
+  for (size_t i = 0; i < 4; ++i)
+    CHECK(out[i].index == encoder.encode_frozen(texels.data() + i * 3 * mat.grid.samples()).index);
+}
