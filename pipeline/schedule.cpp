@@ -21,13 +21,15 @@ ScheduleSettings ScheduleSettings::from(const ParameterDictionary& d) {
   s.tile_texels = d.integer("schedule.tile_texels", 1, 1 << 16);
   s.threads = d.integer("schedule.threads", 1, 256);
   s.search = d.string("schedule.search");
-  if (s.search != "auto" && s.search != "pruned" && s.search != "batched")
-    throw ConfigError(d.origin() + ": 'schedule.search' = '" + s.search + "' must be \"auto\", \"pruned\" or \"batched\"");
+  if (s.search != "auto" && s.search != "pruned" && s.search != "batched" && s.search != "batched-reference")
+    throw ConfigError(d.origin() + ": 'schedule.search' = '" + s.search +
+                      "' must be \"auto\", \"pruned\", \"batched\" or \"batched-reference\"");
   return s;
 }
 
 SearchPath ScheduleSettings::search_path(const AngularGrid& grid, const SimilaritySettings& similarity) const {
   if (search == "pruned") return SearchPath::Pruned;
+  if (search == "batched-reference") return SearchPath::BatchedReference;
   if (search == "batched")
     return ComputeDevice::get().uses_opencl() ? SearchPath::BatchedOpenCL : SearchPath::BatchedReference;
   return FrozenSearch::preferred(grid, similarity);

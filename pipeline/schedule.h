@@ -24,7 +24,9 @@ struct ScheduleSettings {
   double relax_factor = 2.5;
   int tile_texels = 256;
   int threads = 2;  // phase 3 workers
-  // Phase 3 search: "auto" (the fastest measured: pruned for now), "pruned", "batched"
+  // Phase 3 search: "auto" (the fastest: the batched kernel on OpenCL, else pruned), "pruned",
+  // "batched" (OpenCL, or its C++ reference without OpenCL), "batched-reference" (the kernel's C++
+  // reference even on OpenCL: for comparisons)
   // (on the compute device's path: OpenCL or its C++ reference). All give the same entries.
   std::string search = "auto";
   SearchPath search_path(const AngularGrid& grid, const SimilaritySettings& similarity) const;

@@ -8,6 +8,7 @@
 #include "pipeline/config.h"
 #include "pipeline/encoder.h"
 #include "pipeline/error.h"
+#include "pipeline/opencl_runtime.h"
 #include "pipeline/schedule.h"
 #include "support/synthetic_texels.h"
 
@@ -143,5 +144,24 @@ TEST_CASE("schedule settings come from the config; bad values are ConfigErrors")
     FAIL("expected ConfigError");
   } catch (const ConfigError& e) {
     CHECK(std::string(e.what()).find("schedule.tile_texel") != std::string::npos);
+  }
+}
+
+TEST_CASE("schedule.search picks the phase-3 path; an unknown value is a ConfigError naming the key") {
+  REQUIRE(ComputeDevice::get().uses_opencl());
+  auto path = [](const std::string& value) {
+    ParameterDictionary d = ParameterDictionary::embedded_default("pipeline");
+    d.merge(ParameterDictionary(nlohmann::json{{"schedule", {{"search", value}}}}, "test"));
+    return ScheduleSettings::from(d).search_path(AngularGrid{}, SimilaritySettings{});
+  };
+  CHECK(path("auto") == SearchPath::BatchedOpenCL);
+  CHECK(path("pruned") == SearchPath::Pruned);
+  CHECK(path("batched") == SearchPath::BatchedOpenCL);
+  CHECK(path("batched-reference") == SearchPath::BatchedReference);
+  try {
+    path("fastest");
+    FAIL("an unknown search path was accepted");
+  } catch (const ConfigError& e) {
+    CHECK(std::string(e.what()).find("schedule.search") != std::string::npos);
   }
 }
