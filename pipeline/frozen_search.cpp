@@ -394,7 +394,9 @@ void FrozenSearch::bins_opencl(const std::vector<FrozenQuery>& queries, const st
 }
 
 void FrozenSearch::encode(const float* texels, size_t n, P6Entry* out) {
-  if (path_ == SearchPath::Pruned) encode_pruned(texels, n, out);
+  // With one or two P4 entries there is nothing to abandon, and the batch's fixed host work per texel
+  // (packing its query, settling the winner exactly) costs more than the kernel saves.
+  if (path_ == SearchPath::Pruned || encoder_.codebooks().p4_index.rows() < 3) encode_pruned(texels, n, out);
   else encode_batched(texels, n, out);
   stats_.texels += n;
 }
