@@ -125,12 +125,12 @@ struct Encoder::Query {
 
 namespace {
 
-ChannelView make_view(const WindowGeometry& g, const float* v, float* mean, float* var) {
+// A view of one plane channel whose window statistics are already in mean and var.
+ChannelView view_of(const WindowGeometry& g, const float* v, const float* mean, const float* var) {
   ChannelView cv;
   cv.v = v;
   cv.mean = mean;
   cv.var = var;
-  g.stats(v, mean, var);
   double s = 0, ss = 0;
   for (int i = 0; i < g.size(); ++i) {
     s += v[i];
@@ -139,6 +139,11 @@ ChannelView make_view(const WindowGeometry& g, const float* v, float* mean, floa
   cv.sum = s;
   cv.sumsq = ss;
   return cv;
+}
+
+ChannelView make_view(const WindowGeometry& g, const float* v, float* mean, float* var) {
+  g.stats(v, mean, var);
+  return view_of(g, v, mean, var);
 }
 
 }  // namespace
@@ -1147,15 +1152,6 @@ P6Entry Encoder::encode_frozen(const float* texel_in) const {
   return frozen_entry(q, search_composite(q, 4, kNoBound, ctx));
 }
 
-std::vector<uint32_t> Encoder::frozen_candidates(const float* texel_in) const {
-  check_frozen();
-  const std::vector<float> texel = clamped_texel(texel_in, grid_.samples(), dyn_);
-  Ctx ctx;
-  const Query q = texel_query(texel, ctx);
-  order_composite(q, 4, ctx);
-  return ctx.order;
-}
-
 P6Entry Encoder::encode_frozen_among(const float* texel_in, const std::vector<uint32_t>& order, double floor) const {
   check_frozen();
   const std::vector<float> texel = clamped_texel(texel_in, grid_.samples(), dyn_);
@@ -1166,16 +1162,52 @@ P6Entry Encoder::encode_frozen_among(const float* texel_in, const std::vector<ui
   return frozen_entry(q, best);
 }
 
+P6Entry Encoder::encode_frozen_among(const FrozenQuery& f, const std::vector<uint32_t>& order, double floor) const {
+  check_frozen();
+  Ctx ctx;
+  const Query q = frozen_texel_query(f, ctx);
+  const Match best = search_composite_in(q, 4, order, floor, ctx);
+  if (best.index < 0) throw InputError("encoder: no candidate reaches the given floor score");
+  return frozen_entry(q, best);
+}
+
 FrozenQuery Encoder::frozen_query(const float* texel_in) const {
-  const std::vector<float> texel = clamped_texel(texel_in, grid_.samples(), dyn_);
+  check_frozen();
   FrozenQuery f;
-  f.texel = texel;
-  const SsimConstants k = SsimConstants::make(settings_, dyn_, luminance_range(texel.data(), grid_.samples()));
+  f.texel = clamped_texel(texel_in, grid_.samples(), dyn_);
+  Ctx ctx;
+  Query q = texel_query(f.texel, ctx);
+  order_composite(q, 4, ctx);
   for (int c = 0; c < 3; ++c) {
-    f.c1[c] = k.c1[c];
-    f.c2[c] = k.c2[c];
+    f.c1[c] = ctx.k.c1[c];
+    f.c2[c] = ctx.k.c2[c];
   }
+  f.stats = std::move(q.stats);
+  f.candidates = std::move(ctx.order);
   return f;
+}
+
+// The texel query of a FrozenQuery, borrowing its values and window statistics.
+Encoder::Query Encoder::frozen_texel_query(const FrozenQuery& f, Ctx& ctx) const {
+  const size_t samples = grid_.samples();
+  for (int c = 0; c < 3; ++c) {
+    ctx.k.c1[c] = f.c1[c];
+    ctx.k.c2[c] = f.c2[c];
+  }
+  ctx.scratch.resize(size_t(3 * g2_.size()));
+  const int nplanes = grid_.n_phi_v * grid_.n_theta_v, n = g2_.size();
+  if (f.texel.size() != 3 * samples || f.stats.size() != size_t(2 * 3 * nplanes * n))
+    throw InputError("encoder: a frozen query of another grid");
+  Query q;
+  q.planes = nplanes;
+  q.values = size_t(3) * samples;
+  for (int p = 0; p < nplanes; ++p)
+    for (int c = 0; c < 3; ++c) {
+      const float* st = f.stats.data() + size_t(2 * (p * 3 + c) * n);
+      q.views.push_back(view_of(g2_, f.texel.data() + size_t(c) * samples + size_t(p * n), st, st + n));
+    }
+  q.order_planes(n);
+  return q;
 }
 
 void Encoder::p4_planes(uint32_t e, std::vector<uint32_t>& p2, std::vector<uint32_t>& i2,

@@ -53,11 +53,16 @@ struct EncoderStats {
   uint64_t laesa_skipped = 0;  // P4 candidates excluded by the MSE pivot bound (of `pruned`)
 };
 
-// What the batched phase-3 search needs of one texel: its values with luminance clamped at black
-// (3 x grid.samples(), layout [channel][AngularGrid::index]) and its SSIM constants per channel.
+// What the batched phase-3 search needs of one texel, computed once: its values with luminance
+// clamped at black (3 x grid.samples(), layout [channel][AngularGrid::index]), its SSIM constants per
+// channel, the window means and variances of every plane and channel (plane-major, [mean | var] of
+// n_alpha x n_beta each), and the P4 candidates encode_frozen() evaluates, in its order (the best by
+// proxy; every entry when candidate_limit is 0).
 struct FrozenQuery {
   std::vector<float> texel;
   float c1[3] = {0, 0, 0}, c2[3] = {0, 0, 0};
+  std::vector<float> stats;
+  std::vector<uint32_t> candidates;
 };
 
 // Brightness to which new M, P3 and P4 entries are normalized: mean of (Y - 16) for LDR, of Y for HDR.
@@ -81,13 +86,12 @@ class Encoder {
   P6Entry encode_frozen(const float* texel) const;
 
   // The pieces of encode_frozen() for the batched search (pipeline/frozen_search.h):
-  // the candidates it evaluates, in order (the best by proxy; every entry when candidate_limit is 0);
-  std::vector<uint32_t> frozen_candidates(const float* texel) const;
+  // the texel as the comparison sees it, with its candidates;
+  FrozenQuery frozen_query(const float* texel) const;
   // the exact search among `order` that only accepts scores >= floor (throws InputError if none
   // does): equal to encode_frozen() whenever the best candidate's score is >= floor and in `order`;
+  P6Entry encode_frozen_among(const FrozenQuery& query, const std::vector<uint32_t>& order, double floor) const;
   P6Entry encode_frozen_among(const float* texel, const std::vector<uint32_t>& order, double floor) const;
-  // the texel as the comparison sees it;
-  FrozenQuery frozen_query(const float* texel) const;
   // the M planes of a P4 entry (n_phi_v x n_theta_v, phi_v-major): P2 and I2 entries and the
   // product of the P4 and P3 scales;
   void p4_planes(uint32_t p4, std::vector<uint32_t>& p2, std::vector<uint32_t>& i2, std::vector<float>& factor) const;
@@ -106,6 +110,7 @@ class Encoder {
     float factor;
   };
   struct Query;
+  Query frozen_texel_query(const FrozenQuery& f, Ctx& ctx) const;
   struct Match {
     int64_t index = -1;
     double score = -1e300;

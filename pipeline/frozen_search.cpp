@@ -262,15 +262,15 @@ void FrozenSearch::parallel(size_t n, F&& f) const {
 
 std::vector<float> FrozenSearch::query_block(const FrozenQuery& q) const {
   const AngularGrid& g = encoder_.codebooks().grid;
-  const WindowGeometry geometry(g.n_alpha, g.n_beta, encoder_.settings().window_radius);
-  const size_t n = size_t(geometry.size()), planes = size_t(g.n_phi_v * g.n_theta_v), samples = g.samples();
+  const size_t n = size_t(g.n_alpha * g.n_beta), planes = size_t(g.n_phi_v * g.n_theta_v), samples = g.samples();
   std::vector<float> block(planes * 3 * 3 * n);
   for (size_t p = 0; p < planes; ++p)
     for (size_t c = 0; c < 3; ++c) {
       float* out = block.data() + (p * 3 + c) * 3 * n;
       const float* v = q.texel.data() + c * samples + p * n;
+      const float* st = q.stats.data() + (p * 3 + c) * 2 * n;
       std::copy(v, v + n, out);
-      geometry.stats(v, out + n, out + 2 * n);
+      std::copy(st, st + 2 * n, out + n);
     }
   return block;
 }
@@ -282,6 +282,10 @@ std::vector<int> FrozenSearch::bins(const std::vector<FrozenQuery>& queries, con
   if (candidates.size() != texels * slots) throw InputError("frozen search: candidates must be texels x slots");
   for (uint32_t e : candidates)
     if (e >= encoder_.codebooks().p4_index.rows()) throw InputError("frozen search: candidate past the end of P4");
+  const AngularGrid& g = encoder_.codebooks().grid;
+  for (const FrozenQuery& q : queries)
+    if (q.texel.size() != 3 * g.samples() || q.stats.size() != 2 * 3 * g.samples())
+      throw InputError("frozen search: a query of another grid (use Encoder::frozen_query)");
   std::vector<int> out(texels * slots);
   if (out.empty()) return out;
   const auto t0 = std::chrono::steady_clock::now();
@@ -322,7 +326,6 @@ void FrozenSearch::bins_opencl(const std::vector<FrozenQuery>& queries, const st
   const int rows = g.n_alpha, cols = g.n_beta, planes = g.n_phi_v * g.n_theta_v;
   const int radius = encoder_.settings().window_radius, hdr = encoder_.dynamic() == Dynamic::HDR;
   const PaddedPlane layout{rows, cols, radius};
-  const WindowGeometry geometry(rows, cols, radius);
   const size_t n = size_t(rows * cols), samples = g.samples(), stride = size_t(planes) * 3 * layout.block();
   auto& dev = ComputeDevice::get();
   cl::CommandQueue& queue = dev.queue();
@@ -351,12 +354,10 @@ void FrozenSearch::bins_opencl(const std::vector<FrozenQuery>& queries, const st
         std::copy_n(candidates.data() + first * slots, texels * slots, cand.get());
         parallel(texels, [&](size_t t) {
           const FrozenQuery& q = queries[first + t];
-          std::vector<float> mean(n), var(n);
           for (size_t p = 0; p < size_t(planes); ++p)
             for (size_t c = 0; c < 3; ++c) {
-              const float* v = q.texel.data() + c * samples + p * n;
-              geometry.stats(v, mean.data(), var.data());
-              layout.pack(v, mean.data(), var.data(), search_offset(hdr, int(c)),
+              const float* st = q.stats.data() + (p * 3 + c) * 2 * n;
+              layout.pack(q.texel.data() + c * samples + p * n, st, st + n, search_offset(hdr, int(c)),
                           blocks.get() + t * stride + (p * 3 + c) * layout.block());
             }
           for (size_t c = 0; c < 3; ++c) consts.get()[t * 6 + c] = q.c1[c], consts.get()[t * 6 + 3 + c] = q.c2[c];
@@ -410,17 +411,14 @@ void FrozenSearch::encode_batched(const float* texels, size_t n, P6Entry* out) {
   const size_t values = 3 * encoder_.codebooks().grid.samples();
   auto t0 = std::chrono::steady_clock::now();
   std::vector<FrozenQuery> queries(n);
-  std::vector<std::vector<uint32_t>> order(n);
-  parallel(n, [&](size_t i) {
-    queries[i] = encoder_.frozen_query(texels + i * values);
-    order[i] = encoder_.frozen_candidates(texels + i * values);
-  });
-  const size_t slots = n ? order[0].size() : 0;
+  parallel(n, [&](size_t i) { queries[i] = encoder_.frozen_query(texels + i * values); });
+  const size_t slots = n ? queries[0].candidates.size() : 0;
   std::vector<uint32_t> candidates;
   candidates.reserve(n * slots);
-  for (const auto& o : order) {
-    if (o.size() != slots) throw InputError("frozen search: texels of one batch have different candidate counts");
-    candidates.insert(candidates.end(), o.begin(), o.end());
+  for (const auto& q : queries) {
+    if (q.candidates.size() != slots)
+      throw InputError("frozen search: texels of one batch have different candidate counts");
+    candidates.insert(candidates.end(), q.candidates.begin(), q.candidates.end());
   }
   const std::vector<int> bin = bins(queries, candidates, slots);
   stats_.batch_seconds += seconds_since(t0);
@@ -443,9 +441,9 @@ void FrozenSearch::encode_batched(const float* texels, size_t n, P6Entry* out) {
       if (bin[i * slots + k] >= 0 && upper[k] >= floor) keep.push_back(k);
     std::stable_sort(keep.begin(), keep.end(), [&](size_t a, size_t b) { return lower[a] > lower[b]; });
     std::vector<uint32_t> pick;
-    for (size_t k : keep) pick.push_back(order[i][k]);
+    for (size_t k : keep) pick.push_back(queries[i].candidates[k]);
     settled[i] = pick.size();
-    out[i] = encoder_.encode_frozen_among(texels + i * values, pick, floor);
+    out[i] = encoder_.encode_frozen_among(queries[i], pick, floor);
   });
   for (size_t s : settled) stats_.settled += s;
   stats_.settle_seconds += seconds_since(t0);
