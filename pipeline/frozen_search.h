@@ -24,7 +24,7 @@ enum class SearchPath { Pruned, BatchedOpenCL, BatchedReference };
 // What the batched path measured (for reports and benchmarks).
 struct SearchStats {
   size_t texels = 0;
-  size_t scored = 0;    // (texel, candidate) pairs scored by the batch
+  size_t scored = 0;    // (texel, candidate) pairs the batch started (most are abandoned early)
   size_t settled = 0;   // candidates then compared exactly on the host
   double batch_seconds = 0, settle_seconds = 0;
   double device_seconds = 0;  // of batch_seconds: scoring alone (the kernel or its reference)
@@ -33,7 +33,7 @@ struct SearchStats {
 class FrozenSearch {
  public:
   // `encoder` must outlive the search and its code-books must not grow meanwhile (phase 3).
-  // BatchedOpenCL throws DeviceError unless OpenCL is in use.
+  // BatchedOpenCL throws DeviceError unless OpenCL is in use and kernel_fits() the grid.
   FrozenSearch(const Encoder& encoder, SearchPath path, int threads);
   ~FrozenSearch();
   FrozenSearch(const FrozenSearch&) = delete;
