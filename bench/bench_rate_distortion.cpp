@@ -10,6 +10,8 @@
 //   --big p:N,..       extra presets at their own size (leather:256; --quick none); "none" for none
 //   --proposte N       the real proposte sample cropped to N x N from its corner (256 = whole; --quick 16; 0 = skip)
 //   --scales a,b,..    factors on configs/pipeline.json's thresholds.ssim (0.7,1,1.5)
+//   --phase2 a,b,..    more btfvq points at the default thresholds with schedule.phase2_fraction = a, b
+//                      (none by default; more growing texels raise quality where thresholds do not)
 //   --pca, --grouped, --lab, --vq a,b,..   baseline sizes (components / code-book entries)
 #include <algorithm>
 #include <cmath>
@@ -44,6 +46,7 @@ struct RdArgs {
   std::vector<std::pair<std::string, int>> big{{"leather", 256}};
   int proposte = 256;
   std::vector<double> scales{0.7, 1.0, 1.5};
+  std::vector<double> phase2;
   std::vector<int> pca{1, 2, 5}, grouped{1, 2, 8}, lab{1, 4, 16, 64}, vq{32, 128};
 };
 
@@ -112,7 +115,9 @@ RdArgs take_rd_args(std::vector<std::string>& argv, bool& quick) {
           r.big.emplace_back(item.substr(0, colon), to_int(item.substr(colon + 1)));
         }
     } else if (k == "--proposte") r.proposte = to_int(value());
-    else if (k == "--scales") {
+    else if (k == "--phase2") {
+      for (const auto& x : split(value(), ',')) r.phase2.push_back(std::stod(x));
+    } else if (k == "--scales") {
       r.scales.clear();
       for (const auto& x : split(value(), ',')) r.scales.push_back(std::stod(x));
     } else if (k == "--pca") r.pca = ints(value());
@@ -132,19 +137,23 @@ struct Point {
   EvaluationReport e;
 };
 
-ParameterDictionary scaled_config(double scale) {
+// The default pipeline config with every SSIM threshold x scale and, if phase2 >= 0, that
+// schedule.phase2_fraction.
+ParameterDictionary btfvq_config(double scale, double phase2) {
   ParameterDictionary config = ParameterDictionary::embedded_default("pipeline");
   nlohmann::json t = config.json()["thresholds"]["ssim"];
   for (auto& [key, v] : t.items()) v = v.get<double>() * scale;
   config.merge(ParameterDictionary(nlohmann::json{{"thresholds", {{"ssim", t}}}}, "threshold scale"));
+  if (phase2 >= 0)
+    config.merge(ParameterDictionary(nlohmann::json{{"schedule", {{"phase2_fraction", phase2}}}}, "phase-2 fraction"));
   return config;
 }
 
-Point run_btfvq(const MeasuredSample& sample, double scale, const std::filesystem::path& scratch) {
+Point run_btfvq(const MeasuredSample& sample, double scale, double phase2, const std::filesystem::path& scratch) {
   bench::Stopwatch sw;
   Database db;
   CompressOptions options;
-  options.config = scaled_config(scale);
+  options.config = btfvq_config(scale, phase2);
   compress_material(db, sample, "m", options);
   quantize_new_rows(db);
   const auto path = scratch / "rd.btfdb";
@@ -153,7 +162,8 @@ Point run_btfvq(const MeasuredSample& sample, double scale, const std::filesyste
   p.seconds = sw.seconds();
   p.method = "btfvq";
   char s[64];
-  std::snprintf(s, sizeof s, "thresholds x %.2g", scale);
+  if (phase2 >= 0) std::snprintf(s, sizeof s, "thresholds x %.2g, phase2_fraction %.2g", scale, phase2);
+  else std::snprintf(s, sizeof s, "thresholds x %.2g", scale);
   p.setting = s;
   p.bytes = std::filesystem::file_size(path);
   p.e = evaluate(sample, reconstruct_sample(read_database(path.string()), "m", sample));
@@ -323,8 +333,11 @@ int main(int argc, char** argv) {
     const bench::Stopwatch clock;
     std::vector<Point> points;
     const double raw = double(sample.raw_bytes());
-    for (double s : rd.scales) {
-      points.push_back(run_btfvq(sample, s, args.scratch));
+    std::vector<std::pair<double, double>> settings;  // (threshold scale, phase2_fraction or -1)
+    for (double s : rd.scales) settings.emplace_back(s, -1.0);
+    for (double f : rd.phase2) settings.emplace_back(1.0, f);
+    for (const auto& [s, f] : settings) {
+      points.push_back(run_btfvq(sample, s, f, args.scratch));
       points.back().ratio = raw / double(points.back().bytes);
       std::fprintf(stderr, "  btfvq %s: 1:%.0f MSSIM %.3f (encode %.1f s, %.0f s so far)\n", points.back().setting.c_str(),
                    points.back().ratio, points.back().e.mssim_y, points.back().seconds, clock.seconds());
