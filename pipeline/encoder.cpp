@@ -784,19 +784,8 @@ float luminance_range(const float* texel, size_t samples) {
 Encoder::Match Encoder::encode_p4(const float* texel_in, Ctx& ctx, bool exact) {
   const size_t samples = grid_.samples();
   const std::vector<float> texel = clamped_texel(texel_in, samples, dyn_);
-  ctx.k = SsimConstants::make(settings_, dyn_, luminance_range(texel.data(), samples));
-  ctx.scratch.resize(size_t(3 * g2_.size()));
-  const int nplanes = grid_.n_phi_v * grid_.n_theta_v, n = g2_.size();
-  Query q;
-  q.planes = nplanes;
-  q.values = size_t(3) * samples;
-  q.stats.resize(size_t(2 * 3 * nplanes * n));
-  for (int p = 0; p < nplanes; ++p)
-    for (int c = 0; c < 3; ++c) {
-      float* st = q.stats.data() + size_t(2 * (p * 3 + c) * n);
-      q.views.push_back(make_view(g2_, texel.data() + size_t(c) * samples + size_t(p * n), st, st + n));
-    }
-  q.order_planes(n);
+  const Query q = texel_query(texel, ctx);
+  const int n = g2_.size();
   const double p4_bound = bound_for(thresholds_.p4, q.values);
   if (!exact) {
     const Match found = search_composite(q, 4, p4_bound, ctx);
