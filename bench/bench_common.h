@@ -57,10 +57,13 @@ inline double peak_rss_mb() {
   return double(u.ru_maxrss) / 1024.0;
 }
 
+// own_provenance: the markdown says which run measured each of its parts (results kept across runs),
+// so BENCHMARKS.md does not stamp the whole section with the latest run.
 inline void write_section(const Args& a, const std::string& title, int order, const std::string& markdown,
-                          const nlohmann::json& figures) {
+                          const nlohmann::json& figures, bool own_provenance = false) {
   std::ofstream out(a.json);
-  out << nlohmann::json{{"title", title}, {"order", order}, {"markdown", markdown}, {"figures", figures}}.dump(2);
+  out << nlohmann::json{{"title", title}, {"order", order}, {"markdown", markdown}, {"figures", figures},
+                        {"own_provenance", own_provenance}}.dump(2);
 }
 
 }  // namespace btfvq::bench

@@ -3,9 +3,14 @@
 // sample in one run, evaluated with the same metrics; one table and one plot (ratio on a log axis
 // against MSSIM) per preset, and btfvq's ratio over the best PCA baseline's at matched MSSIM.
 //
+// Each sample's results are kept in bench/results/rd/<sample>.json with the run that measured them
+// (commit, date, arguments), and the section is assembled from every kept sample: the 256 x 256
+// samples, an hour each here, can be measured by runs of their own without losing the others.
+//
 // Own flags (taken out before bench_common's; also read from the environment variable BTFVQ_RD_ARGS
 // so that `BTFVQ_RD_ARGS="--presets wood --size 64" make bench` reaches only this bench):
-//   --presets a,b,..   synthetic presets at --size (default tile,leather,wood,corduroy; --quick tile,leather,wood)
+//   --presets a,b,..   synthetic presets at --size (default tile,leather,wood,corduroy; --quick tile,leather,wood;
+//                      "none" for none)
 //   --size N           their size (128; --quick 32)
 //   --big p:N,..       extra presets at their own size (leather:256; --quick none); "none" for none
 //   --proposte N       the real proposte sample cropped to N x N from its corner (256 = whole; --quick 16; 0 = skip)
@@ -16,6 +21,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -103,7 +109,10 @@ RdArgs take_rd_args(std::vector<std::string>& argv, bool& quick) {
       if (i + 1 >= argv.size()) usage(k + " needs a value");
       return argv[++i];
     };
-    if (k == "--presets") r.presets = split(value(), ',');
+    if (k == "--presets") {
+      const std::string v = value();
+      r.presets = v == "none" ? std::vector<std::string>{} : split(v, ',');
+    }
     else if (k == "--size") r.size = to_int(value());
     else if (k == "--big") {
       r.big.clear();
@@ -291,26 +300,96 @@ void write_plot(const bench::Args& args, const std::string& key, const std::stri
   if (std::system(cmd.c_str()) != 0) std::cerr << "plot failed: " << cmd << "\n";
 }
 
-}  // namespace
 
-int main(int argc, char** argv) {
-  std::vector<std::string> av(argv + 1, argv + argc);
-  bool quick = false;
-  const RdArgs rd = take_rd_args(av, quick);
-  std::vector<char*> rest{argv[0]};
-  for (auto& a : av) rest.push_back(a.data());
-  const auto args = bench::parse_args(int(rest.size()), rest.data());
+// Why btfvq stays below 2x the best PCA baseline on a sample: the sentences BENCHMARKS.md prints
+// next to the numbers, chosen from what was measured (which PCA wins, how close btfvq is to the
+// parametrization's ceiling, how far its threshold settings move its MSSIM).
+std::string why_not_2x(const Matched& m, double ceiling, double lo, double hi) {
+  std::ostringstream w;
+  char num[64];
+  w << "Why not 2x everywhere here: the strongest PCA is " << m.best_method << ". ";
+  if (m.best_method == "CIELab PCA")
+    w << "A full-matrix factorization stores each eigen-ABRDF (6561 values) once for all texels and each eigen-image "
+         "at one byte per texel, so a material whose texels mix a few reflectance behaviours is nearly low-rank and a "
+         "handful of components reach btfvq's quality. ";
+  else
+    w << "Its per-view (or per-group) bases follow the light dependence closely at one byte per texel and component. ";
+  if (m.bounded > 0)
+    w << "Where even the PCA's smallest measured setting is above btfvq's MSSIM, only an upper bound of the factor is "
+         "known (a PCA cannot go below one component). ";
+  std::snprintf(num, sizeof num, "%.3f", ceiling);
+  if (ceiling - hi > 0.05)
+    w << "The parametrization alone keeps MSSIM at " << num
+      << ", so btfvq's loss comes from its code-books: in phase 3 (about 95% of the texels) a texel takes one of the "
+         "P4 entries grown by the phase-1/2 texels, times a scale, so its quality is bounded by what those few hundred "
+         "entries cover. ";
+  else
+    w << "btfvq is within 0.05 of the parametrization's ceiling (MSSIM " << num << "), so its remaining loss is the "
+         "resampling's, which no threshold removes. ";
+  std::snprintf(num, sizeof num, "%.3f-%.3f", lo, hi);
+  if (ceiling - hi <= 0.05)
+    ;  // at the ceiling: the spread of the settings says nothing more
+  else if (hi - lo < 0.05)
+    w << "Its settings move its MSSIM only within " << num
+      << " while its size changes a lot (a nearly vertical curve): tighter thresholds buy bytes, not quality, so "
+         "btfvq does not reach the high-MSSIM part of the PCA curves, where PCA is least efficient.";
+  else
+    w << "Its settings span MSSIM " << num << "; the PCA curve rises faster with bytes in that range.";
+  return w.str();
+}
 
-  struct Case {
-    std::string key, title;
-    MeasuredSample sample;
-  };
-  std::vector<std::pair<std::string, int>> synth;
-  for (const auto& p : rd.presets) synth.emplace_back(p, rd.size);
-  synth.insert(synth.end(), rd.big.begin(), rd.big.end());
+// The command that reproduces this run, as bench/run.sh describes it (BTFVQ_BENCH_COMMAND) plus this
+// bench's own arguments.
+std::string run_command() {
+  const char* base = std::getenv("BTFVQ_BENCH_COMMAND");
+  const char* rd = std::getenv("BTFVQ_RD_ARGS");
+  std::string c = base ? base : "bench_rate_distortion";
+  if (rd && *rd) c = "BTFVQ_RD_ARGS=\"" + std::string(rd) + "\" " + c;
+  return c;
+}
 
+std::string utc_now() {
+  const std::time_t t = std::time(nullptr);
+  char buf[64];
+  std::strftime(buf, sizeof buf, "%Y-%m-%d %H:%M UTC", std::gmtime(&t));
+  return buf;
+}
+
+// --quick results (tiny samples) are kept apart so they never mix into the full-size section.
+std::filesystem::path sample_store(const bench::Args& args, bool quick) {
+  return args.figures / (quick ? "rd-quick" : "rd");
+}
+
+// Synthetic presets first by size, in the presets' own order, then the real data.
+int sample_order(const std::string& key) {
+  static const std::vector<std::string> presets = {"tile", "foil", "wood", "leather", "fabric", "corduroy", "wool"};
+  const auto us = key.rfind('_');
+  const std::string name = key.substr(0, us);
+  const int size = us == std::string::npos ? 0 : std::atoi(key.c_str() + us + 1);
+  const auto it = std::find(presets.begin(), presets.end(), name);
+  return it == presets.end() ? 1000000 + size : size * 100 + int(it - presets.begin());
+}
+
+void keep_sample(const bench::Args& args, bool quick, const std::string& key, const std::string& title,
+                 const std::string& markdown, const nlohmann::json& figures, const std::string& command) {
+  const auto dir = sample_store(args, quick);
+  std::filesystem::create_directories(dir);
+  const char* commit = std::getenv("BTFVQ_BENCH_COMMIT");
+  const nlohmann::json kept = {{"key", key}, {"title", title}, {"order", sample_order(key)}, {"markdown", markdown},
+                               {"figures", figures},
+                               {"provenance", {{"commit", commit ? commit : "unknown"}, {"command", command}, {"date", utc_now()}}}};
+  const auto tmp = dir / (key + ".json.tmp");
+  std::ofstream(tmp) << kept.dump(1);
+  std::filesystem::rename(tmp, dir / (key + ".json"));
+}
+
+// The section: the method, then every kept sample with the run that measured it, then the tally.
+void write_rd_section(const bench::Args& args, bool quick) {
+  std::vector<nlohmann::json> kept;
+  for (const auto& f : std::filesystem::directory_iterator(sample_store(args, quick)))
+    if (f.path().extension() == ".json") kept.push_back(nlohmann::json::parse(std::ifstream(f.path())));
+  std::sort(kept.begin(), kept.end(), [](const auto& a, const auto& b) { return a["order"] < b["order"]; });
   std::ostringstream md;
-  nlohmann::json figures;
   md << "Each sample is compressed by btfvq (`compress_material` with configs/pipeline.json's `thresholds.ssim` "
         "scaled by each factor; ratio = raw bytes / .btfdb file bytes) and by four baselines built in bench/baselines "
         "with Eigen, each decoded at the 81 x 81 measured directions and evaluated with pipeline/metrics.h. Baseline "
@@ -321,13 +400,45 @@ int main(int argc, char** argv) {
         "full-matrix PCA of the L, a, b channels over all 6561 pairs, k components in total picked greedily by sigma; "
         "no perceptual filter); **one-level VQ** (btfvq's resampled texels, one k-means code-book of N whole "
         "texels). Encode time of a baseline = its decomposition (shared by its sizes) plus the size's quantization. "
-        "MSSIM on BT.601 luma; CIEDE2000 mean over every texel of every image.\n\n";
+        "MSSIM on BT.601 luma; CIEDE2000 mean over every texel of every image. Every table comes from one run of "
+        "this bench on that sample (its command, commit and date are under its heading); the samples are kept in "
+        "bench/results/rd/ so that the 256 x 256 ones (about an hour each here) can be measured by runs of their own.\n\n";
   if (quick) md << "*--quick: 32 x 32 samples and a 16 x 16 corner of proposte; every ratio depends on the texel "
                    "count (PCA bases of 243 to 6561 values and btfvq's code-books are shared by fewer texels), so quick "
                    "ratios are not full-size ratios; real data grows large code-books, so the small proposte corner "
                    "has a low btfvq ratio.*\n\n";
+  nlohmann::json figures = nlohmann::json::object();
+  int wins = 0;
+  std::string won;
+  for (const auto& k : kept) {
+    const auto& p = k["provenance"];
+    md << "### " << k["title"].get<std::string>() << "\n\n*Measured by `" << p["command"].get<std::string>()
+       << "` at commit " << p["commit"].get<std::string>() << " on " << p["date"].get<std::string>() << ".*\n\n"
+       << k["markdown"].get<std::string>();
+    figures[k["key"].get<std::string>()] = k["figures"];
+    if (k["figures"].value("at_least_2x", false)) ++wins, won += (won.empty() ? "" : ", ") + k["title"].get<std::string>();
+  }
+  md << "btfvq's ratio is at least 2x the best PCA baseline's at every matched MSSIM on **" << wins << " of "
+     << kept.size() << "** samples" << (won.empty() ? "" : " (" + won + ")") << ".\n";
+  figures["samples_at_least_2x"] = wins;
+  bench::write_section(args, "Rate-distortion against the baselines", 35, md.str(), figures, /*own_provenance=*/true);
+}
 
-  int cases = 0, wins = 0;
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::vector<std::string> av(argv + 1, argv + argc);
+  bool quick = false;
+  const RdArgs rd = take_rd_args(av, quick);
+  std::vector<char*> rest{argv[0]};
+  for (auto& a : av) rest.push_back(a.data());
+  const auto args = bench::parse_args(int(rest.size()), rest.data());
+
+  std::vector<std::pair<std::string, int>> synth;
+  for (const auto& p : rd.presets) synth.emplace_back(p, rd.size);
+  synth.insert(synth.end(), rd.big.begin(), rd.big.end());
+
+  const std::string rd_command = run_command();
   auto run_case = [&](const std::string& key, const std::string& title, const MeasuredSample& sample) {
     std::fprintf(stderr, "== %s\n", title.c_str());
     const bench::Stopwatch clock;
@@ -354,7 +465,8 @@ int main(int argc, char** argv) {
     baselines::lab_pca(sample, rd.lab, sink);
     baselines::texel_vq(sample, ParameterDictionary::embedded_default("pipeline"), rd.vq, sink);
 
-    md << "### " << title << "\n\n| method | setting | ratio | bytes | MSSIM (Y) | PSNR dB | CIEDE2000 mean | encode s |\n"
+    std::ostringstream md;
+    md << "| method | setting | ratio | bytes | MSSIM (Y) | PSNR dB | CIEDE2000 mean | encode s |\n"
        << "|---|---|---|---|---|---|---|---|\n";
     nlohmann::json rows = nlohmann::json::array();
     for (const auto& p : points) {
@@ -381,32 +493,14 @@ int main(int argc, char** argv) {
                   ceiling.mssim_y, ceiling.psnr, ceiling.ciede2000_mean, lo, hi);
     md << "\n" << ceil_text << "\n\nMatched MSSIM (btfvq / best PCA baseline, log-ratio interpolated along each curve): "
        << m.text << "\n\nAgainst per-view PCA alone (the \"PCA\" column of paper 000): " << per_view.text << "\n\n";
-    if (m.below_2x > 0) {
-      md << "Why below 2x here: the strongest PCA is " << m.best_method << ". ";
-      if (m.best_method == "CIELab PCA")
-        md << "A full-matrix factorization stores each eigen-ABRDF (6561 values) once for all texels and each "
-              "eigen-image at one byte per texel, so a material whose texels mix a few reflectance behaviours is "
-              "nearly low-rank and a handful of components reach btfvq's quality. ";
-      else
-        md << "Its per-view (or per-group) bases follow the light dependence closely at one byte per texel and component. ";
-      char num[64];
-      std::snprintf(num, sizeof num, "%.3f", ceiling.mssim_y);
-      if (ceiling.mssim_y - hi > 0.05)
-        md << "The parametrization alone keeps MSSIM at " << num << ", so btfvq's loss comes from its code-books; ";
-      else
-        md << "btfvq is close to the parametrization's ceiling, so its loss is the resampling's; ";
-      std::snprintf(num, sizeof num, "%.3f-%.3f", lo, hi);
-      if (hi - lo < 0.05)
-        md << "scaling the thresholds moves its MSSIM only within " << num
-           << " while its size changes a lot (a nearly vertical curve): tighter thresholds buy bytes, not quality, "
-              "so btfvq cannot reach the high-MSSIM part of the PCA curves where PCA is least efficient.";
-      md << "\n\n";
-    }
+    if (m.below_2x > 0 || m.bounded > 0) md << why_not_2x(m, ceiling.mssim_y, lo, hi) << "\n\n";
+    md << "Peak resident memory of the run so far: " << int(bench::peak_rss_mb()) << " MB.\n\n";
     md << "![rate-distortion, " << title << "](bench/results/rd_" << key << ".png)\n\n";
-    ++cases;
-    wins += m.below_2x == 0 && m.bounded == 0 && m.compared > 0;
-    figures[key] = {{"points", rows}, {"matched_mssim", m.json}, {"matched_mssim_per_view_pca", per_view.json}, {"ceiling_mssim", ceiling.mssim_y},
-                    {"below_2x", m.below_2x}};
+    const nlohmann::json figures = {{"points", rows}, {"matched_mssim", m.json}, {"matched_mssim_per_view_pca", per_view.json},
+                                    {"ceiling_mssim", ceiling.mssim_y}, {"below_2x", m.below_2x},
+                                    {"at_least_2x", m.below_2x == 0 && m.bounded == 0 && m.compared > 0},
+                                    {"peak_memory_mb", bench::peak_rss_mb()}};
+    keep_sample(args, quick, key, title, md.str(), figures, rd_command);
   };
 
   for (const auto& [preset, size] : synth) {
@@ -429,10 +523,6 @@ int main(int argc, char** argv) {
                  (rd.proposte < 256 ? ", top-left corner)" : ")"),
              sample);
   }
-  md << "btfvq's ratio is at least 2x the best PCA baseline's at every matched MSSIM on **" << wins << " of " << cases
-     << "** samples.\n\n";
-  figures["samples_at_least_2x"] = wins;
-  md << "Peak resident memory of the whole run: " << int(bench::peak_rss_mb()) << " MB.\n";
-  bench::write_section(args, "Rate-distortion against the baselines", 35, md.str(), figures);
+  write_rd_section(args, quick);
   return 0;
 }

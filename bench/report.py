@@ -44,7 +44,7 @@ def main():
     for s in sections:
         lines += [f"## {s['title']}", ""]
         p = s.get("provenance")
-        if p:
+        if p and not s.get("own_provenance"):
             lines += [f"*Measured by `{p['command']}` at commit {p['commit']} on {p['date']}.*", ""]
         lines += [s["markdown"].rstrip(), ""]
     with open(a.out, "w") as fh:

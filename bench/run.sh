@@ -19,6 +19,9 @@ work=$(mktemp -d /tmp/btfvq-bench.XXXXXX)
 trap 'rm -rf "$work"' EXIT
 commit=$(cd "$root" && git rev-parse --short HEAD 2>/dev/null || echo unknown)
 if [ -n "$(cd "$root" && git status --porcelain --untracked-files=no -- . ':!BENCHMARKS.md' ':!bench/results' 2>/dev/null)" ]; then commit="$commit (dirty)"; fi
+# A bench that keeps results of its own (bench_rate_distortion) records which run measured them.
+export BTFVQ_BENCH_COMMIT="$commit"
+export BTFVQ_BENCH_COMMAND="make bench${extra:+ BENCH_ARGS=\"${extra[*]}\"}${BENCH_ONLY:+ (BENCH_ONLY=$BENCH_ONLY)}"
 for b in "$bin"/bench_*; do
   [ -x "$b" ] || continue
   name=$(basename "$b")
