@@ -32,17 +32,23 @@ const BtfDatabase& proposte() {
       BtfDatabase::from_memory(import_btfbase((test::testdata_dir() / "btfbase" / "proposte").string()));
   return db;
 }
-// A synthetic wood compressed by our encoder, written and opened as a file.
+// A synthetic preset compressed by our encoder.
+Database compressed(const char* preset, int size, uint64_t seed, Dynamic dynamic, const char* name) {
+  SynthOptions o;
+  o.preset = preset;
+  o.size = size;
+  o.seed = seed;
+  o.dynamic = dynamic;
+  Database d;
+  compress_material(d, synthesize(o), name, {});
+  return d;
+}
+
+// Wood written and opened as a file.
 const BtfDatabase& wood() {
   static const BtfDatabase db = [] {
-    SynthOptions o;
-    o.preset = "wood";
-    o.size = 16;
-    o.seed = 3;
-    Database d;
-    compress_material(d, synthesize(o), "wood", {});
     const auto path = test::scratch_dir("sampling") / "wood.btfdb";
-    write_database(d, path.string());
+    write_database(compressed("wood", 16, 3, Dynamic::LDR, "wood"), path.string());
     return BtfDatabase::open(path.string());
   }();
   return db;
@@ -50,16 +56,7 @@ const BtfDatabase& wood() {
 
 // An HDR material (LogLuv coding space: the sampled luminance is the linear one).
 const BtfDatabase& hdr_leather() {
-  static const BtfDatabase db = [] {
-    SynthOptions o;
-    o.preset = "leather";
-    o.size = 8;
-    o.seed = 5;
-    o.dynamic = Dynamic::HDR;
-    Database d;
-    compress_material(d, synthesize(o), "leather_hdr", {});
-    return BtfDatabase::from_memory(std::move(d));
-  }();
+  static const BtfDatabase db = BtfDatabase::from_memory(compressed("leather", 8, 5, Dynamic::HDR, "leather_hdr"));
   return db;
 }
 

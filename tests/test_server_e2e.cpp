@@ -60,6 +60,14 @@ json get_json(const std::string& url, const std::string& path) {
   return json::parse(r->body);
 }
 
+// Submits a job with the CLI and waits until it is done; returns the job id.
+std::string run_job(const fs::path& dir, const std::string& server_args, const std::string& job_args) {
+  const Run job = cli(dir, "submit " + server_args + " " + job_args);
+  REQUIRE(job.status == 0);
+  REQUIRE(cli(dir, "watch " + server_args + " " + job.out).status == 0);
+  return job.out;
+}
+
 }  // namespace
 
 TEST_CASE("real jobs: submit, watch, download with sha256, two versions of one database, decode") {
@@ -67,12 +75,8 @@ TEST_CASE("real jobs: submit, watch, download with sha256, two versions of one d
   ServerProcess server(dir / "data", free_loopback_port());
   const std::string s = "--server " + server.url();
 
-  const Run first = cli(dir, "submit " + s + " --db shop --synthetic tile:8 --name tile8");
-  REQUIRE(first.status == 0);
-  CHECK(cli(dir, "watch " + s + " " + first.out).status == 0);
-  const Run second = cli(dir, "submit " + s + " --db shop --synthetic wood:8 --name wood8");
-  REQUIRE(second.status == 0);
-  CHECK(cli(dir, "watch " + s + " " + second.out).status == 0);
+  run_job(dir, s, "--db shop --synthetic tile:8 --name tile8");
+  run_job(dir, s, "--db shop --synthetic wood:8 --name wood8");
 
   const json info = get_json(server.url(), "/v1/databases/shop");
   CHECK(info["versions"].size() == 2);
@@ -95,9 +99,7 @@ TEST_CASE("kill -9 during a job, restart: the job completes with the same databa
   std::string reference;
   {
     ServerProcess server(dir / "clean", free_loopback_port());
-    const Run job = cli(dir, "submit --server " + server.url() + job_args);
-    REQUIRE(job.status == 0);
-    REQUIRE(cli(dir, "watch --server " + server.url() + " " + job.out).status == 0);
+    run_job(dir, "--server " + server.url(), job_args);
     REQUIRE(cli(dir, "download --server " + server.url() + " fabric --out " + (dir / "clean.btfdb").string()).status == 0);
     reference = slurp(dir / "clean.btfdb");
   }
@@ -126,9 +128,7 @@ TEST_CASE("20 concurrent clients poll and download while a job runs: no failed r
   const fs::path dir = scratch_dir("e2e-load");
   ServerProcess server(dir / "data", free_loopback_port());
   const std::string s = "--server " + server.url();
-  const Run first = cli(dir, "submit " + s + " --db load --synthetic tile:8 --name a");
-  REQUIRE(first.status == 0);
-  REQUIRE(cli(dir, "watch " + s + " " + first.out).status == 0);
+  run_job(dir, s, "--db load --synthetic tile:8 --name a");
   const Run running = cli(dir, "submit " + s + " --db load --synthetic fabric:16 --name b");
   REQUIRE(running.status == 0);
 
