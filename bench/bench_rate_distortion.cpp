@@ -408,9 +408,13 @@ void write_rd_section(const bench::Args& args, bool quick) {
                    "ratios are not full-size ratios; real data grows large code-books, so the small proposte corner "
                    "has a low btfvq ratio.*\n\n";
   nlohmann::json figures = nlohmann::json::object();
-  int wins = 0;
+  int wins = 0, somewhere = 0;
   std::string won;
   for (const auto& k : kept) {
+    bool any = false;  // a measured (not bounded) matched point at 2x or more
+    for (const auto& m : k["figures"]["matched_mssim"])
+      any = any || (m["factor"].is_number() && m["factor"].get<double>() >= 2.0 && !m.value("upper_bound", false));
+    somewhere += any;
     const auto& p = k["provenance"];
     md << "### " << k["title"].get<std::string>() << "\n\n*Measured by `" << p["command"].get<std::string>()
        << "` at commit " << p["commit"].get<std::string>() << " on " << p["date"].get<std::string>() << ".*\n\n"
@@ -419,8 +423,10 @@ void write_rd_section(const bench::Args& args, bool quick) {
     if (k["figures"].value("at_least_2x", false)) ++wins, won += (won.empty() ? "" : ", ") + k["title"].get<std::string>();
   }
   md << "btfvq's ratio is at least 2x the best PCA baseline's at every matched MSSIM on **" << wins << " of "
-     << kept.size() << "** samples" << (won.empty() ? "" : " (" + won + ")") << ".\n";
+     << kept.size() << "** samples" << (won.empty() ? "" : " (" + won + ")") << "; at one or more of its matched MSSIM "
+     << "values (not counting upper bounds) on **" << somewhere << " of " << kept.size() << "**.\n";
   figures["samples_at_least_2x"] = wins;
+  figures["samples_at_least_2x_somewhere"] = somewhere;
   bench::write_section(args, "Rate-distortion against the baselines", 35, md.str(), figures, /*own_provenance=*/true);
 }
 
