@@ -75,6 +75,21 @@ std::vector<Case> cases() {
 
 const Direction kViews[] = {{0, 0}, {37, 71}, {66, 203}};
 
+// Runs check(case, its material, view direction, view vector) for every case and view, with the
+// material and the view's theta captured for failure messages.
+template <size_t N, class F>
+void for_each_view(const Direction (&views)[N], F check) {
+  for (const Case& c : cases()) {
+    const BtfMaterial mat = c.db->material(c.material);
+    for (const Direction& vd : views) {
+      const std::string material = c.material;
+      CAPTURE(material);
+      CAPTURE(vd.theta);
+      check(c, mat, vd, to_vector(vd));
+    }
+  }
+}
+
 double angle(const Vec3& a, const Vec3& b) {
   const double d = a.x * b.x + a.y * b.y + a.z * b.z;
   const double la = std::sqrt(a.x * a.x + a.y * a.y + a.z * a.z), lb = std::sqrt(b.x * b.x + b.y * b.y + b.z * b.z);
@@ -106,158 +121,130 @@ double integrate_hemisphere(int nz, int nphi, F f) {
 TEST_CASE("sampled directions follow the returned pdf (chi-square), and the sample's pdf is pdf()") {
   std::mt19937_64 rng(20261122);
   std::uniform_real_distribution<double> uni(0.0, 1.0);
-  for (const Case& c : cases()) {
-    const BtfMaterial mat = c.db->material(c.material);
-    for (const Direction& vd : kViews) {
-      const std::string material = c.material;
-      CAPTURE(material);
-      CAPTURE(vd.theta);
-      const Vec3 view = to_vector(vd);
-      // Bins: 20 x 20 in (alpha, sin beta) of the view's onion frame; d omega = d alpha d(sin beta),
-      // so every bin has the same solid angle and pdf() integrates over it in those coordinates.
-      constexpr int kA = 20, kS = 20, kSub = 4;
-      std::vector<double> expected(kA * kS, 0.0);
-      for (int a = 0; a < kA; ++a)
-        for (int s = 0; s < kS; ++s)
-          for (int i = 0; i < kSub; ++i)
-            for (int j = 0; j < kSub; ++j) {
-              const double alpha = -90.0 + (a + (i + 0.5) / kSub) * 180.0 / kA;
-              const double sb = -1.0 + (s + (j + 0.5) / kSub) * 2.0 / kS;
-              const Vec3 l = to_vector(from_onion({alpha, std::asin(sb) / kDeg}, vd.phi));
-              expected[size_t(a * kS + s)] += mat.pdf(c.u, c.v, l, view) * (kPi / kA) * (2.0 / kS) / (kSub * kSub);
-            }
-      double total = 0;
-      for (double e : expected) total += e;
-      CHECK(total == doctest::Approx(1.0).epsilon(0.01));
+  for_each_view(kViews, [&](const Case& c, const BtfMaterial& mat, const Direction& vd, const Vec3& view) {
+    // Bins: 20 x 20 in (alpha, sin beta) of the view's onion frame; d omega = d alpha d(sin beta),
+    // so every bin has the same solid angle and pdf() integrates over it in those coordinates.
+    constexpr int kA = 20, kS = 20, kSub = 4;
+    std::vector<double> expected(kA * kS, 0.0);
+    for (int a = 0; a < kA; ++a)
+      for (int s = 0; s < kS; ++s)
+        for (int i = 0; i < kSub; ++i)
+          for (int j = 0; j < kSub; ++j) {
+            const double alpha = -90.0 + (a + (i + 0.5) / kSub) * 180.0 / kA;
+            const double sb = -1.0 + (s + (j + 0.5) / kSub) * 2.0 / kS;
+            const Vec3 l = to_vector(from_onion({alpha, std::asin(sb) / kDeg}, vd.phi));
+            expected[size_t(a * kS + s)] += mat.pdf(c.u, c.v, l, view) * (kPi / kA) * (2.0 / kS) / (kSub * kSub);
+          }
+    double total = 0;
+    for (double e : expected) total += e;
+    CHECK(total == doctest::Approx(1.0).epsilon(0.01));
 
-      constexpr int kN = 100000;
-      std::vector<double> observed(kA * kS, 0.0);
-      double worst_pdf_mismatch = 0;
-      for (int n = 0; n < kN; ++n) {
-        const BtfSample smp = mat.sample(c.u, c.v, view, uni(rng), uni(rng));
-        REQUIRE(smp.direction.z >= 0);
-        REQUIRE(smp.pdf > 0);
-        if (n % 50 == 0)
-          worst_pdf_mismatch = std::max(worst_pdf_mismatch, std::abs(mat.pdf(c.u, c.v, smp.direction, view) / smp.pdf - 1.0));
-        const OnionAngles o = to_onion(to_direction(smp.direction), vd.phi);
-        const int a = std::clamp(int((o.alpha + 90.0) / 180.0 * kA), 0, kA - 1);
-        const int s = std::clamp(int((std::sin(o.beta * kDeg) + 1.0) / 2.0 * kS), 0, kS - 1);
-        observed[size_t(a * kS + s)] += 1;
-      }
-      CHECK(worst_pdf_mismatch < 1e-6);
-      // Pearson's statistic; bins expecting fewer than 5 samples are pooled into one.
-      double chi2 = 0, pooled_e = 0, pooled_o = 0;
-      int bins = 0;
-      for (size_t b = 0; b < expected.size(); ++b) {
-        const double e = expected[b] / total * kN;
-        if (e < 5) {
-          pooled_e += e;
-          pooled_o += observed[b];
-          continue;
-        }
-        chi2 += (observed[b] - e) * (observed[b] - e) / e;
-        ++bins;
-      }
-      if (pooled_e > 0) {
-        chi2 += (pooled_o - pooled_e) * (pooled_o - pooled_e) / pooled_e;
-        ++bins;
-      }
-      CAPTURE(chi2);
-      CHECK(chi2 < chi2_critical(bins - 1));
+    constexpr int kN = 100000;
+    std::vector<double> observed(kA * kS, 0.0);
+    double worst_pdf_mismatch = 0;
+    for (int n = 0; n < kN; ++n) {
+      const BtfSample smp = mat.sample(c.u, c.v, view, uni(rng), uni(rng));
+      REQUIRE(smp.direction.z >= 0);
+      REQUIRE(smp.pdf > 0);
+      if (n % 50 == 0)
+        worst_pdf_mismatch = std::max(worst_pdf_mismatch, std::abs(mat.pdf(c.u, c.v, smp.direction, view) / smp.pdf - 1.0));
+      const OnionAngles o = to_onion(to_direction(smp.direction), vd.phi);
+      const int a = std::clamp(int((o.alpha + 90.0) / 180.0 * kA), 0, kA - 1);
+      const int s = std::clamp(int((std::sin(o.beta * kDeg) + 1.0) / 2.0 * kS), 0, kS - 1);
+      observed[size_t(a * kS + s)] += 1;
     }
-  }
+    CHECK(worst_pdf_mismatch < 1e-6);
+    // Pearson's statistic; bins expecting fewer than 5 samples are pooled into one.
+    double chi2 = 0, pooled_e = 0, pooled_o = 0;
+    int bins = 0;
+    for (size_t b = 0; b < expected.size(); ++b) {
+      const double e = expected[b] / total * kN;
+      if (e < 5) {
+        pooled_e += e;
+        pooled_o += observed[b];
+        continue;
+      }
+      chi2 += (observed[b] - e) * (observed[b] - e) / e;
+      ++bins;
+    }
+    if (pooled_e > 0) {
+      chi2 += (pooled_o - pooled_e) * (pooled_o - pooled_e) / pooled_e;
+      ++bins;
+    }
+    CAPTURE(chi2);
+    CHECK(chi2 < chi2_critical(bins - 1));
+  });
 }
 
 TEST_CASE("the pdf integrates to 1 over the hemisphere and is 0 below it") {
-  for (const Case& c : cases()) {
-    const BtfMaterial mat = c.db->material(c.material);
-    for (const Direction& vd : kViews) {
-      const std::string material = c.material;
-      CAPTURE(material);
-      CAPTURE(vd.theta);
-      const Vec3 view = to_vector(vd);
-      const double integral = integrate_hemisphere(300, 600, [&](const Vec3& l) { return mat.pdf(c.u, c.v, l, view); });
-      CHECK(integral == doctest::Approx(1.0).epsilon(0.01));
-      CHECK(mat.pdf(c.u, c.v, Vec3{0.3, 0.2, -0.5}, view) == 0.0);
-    }
-  }
+  for_each_view(kViews, [&](const Case& c, const BtfMaterial& mat, const Direction&, const Vec3& view) {
+    const double integral = integrate_hemisphere(300, 600, [&](const Vec3& l) { return mat.pdf(c.u, c.v, l, view); });
+    CHECK(integral == doctest::Approx(1.0).epsilon(0.01));
+    CHECK(mat.pdf(c.u, c.v, Vec3{0.3, 0.2, -0.5}, view) == 0.0);
+  });
 }
 
 TEST_CASE("the pdf follows the evaluated luminance: at every interior grid node pdf = (luminance + floors) / Z") {
-  for (const Case& c : cases()) {
-    const BtfMaterial mat = c.db->material(c.material);
+  for_each_view(kViews, [&](const Case& c, const BtfMaterial& mat, const Direction& vd, const Vec3& view) {
     const AngularGrid& g = c.db->database().codebooks.grid;
-    for (const Direction& vd : kViews) {
-      const std::string material = c.material;
-      CAPTURE(material);
-      CAPTURE(vd.theta);
-      const Vec3 view = to_vector(vd);
-      // The floors: kSamplingFloor x the mean luminance over all nodes, and kSamplingColumnFloor x
-      // the mean over s (trapezoid) of the node's alpha column. Boundary nodes are evaluated just
-      // inside the horizon, where the decoder still reads the node.
-      std::vector<double> lum, pdf, column_mean(size_t(g.n_alpha), 0.0);
-      std::vector<int> column_of;
-      double mean = 0;
-      for (int a = 0; a < g.n_alpha; ++a)
-        for (int b = 0; b < g.n_beta; ++b) {
-          const double alpha = std::clamp(g.alpha_node(a), -89.999999, 89.999999);
-          const double beta = std::clamp(g.beta_node(b), -89.999999, 89.999999);
-          const Direction l = from_onion({alpha, beta}, vd.phi);
-          const double y = sampling_luminance(mat.evaluate(c.u, c.v, l, vd), mat.hdr());
-          mean += y / (g.n_alpha * g.n_beta);
-          column_mean[size_t(a)] += y * ((b == 0 || b == g.n_beta - 1) ? 0.5 : 1.0) / (g.n_beta - 1);
-          if (a == 0 || b == 0 || a == g.n_alpha - 1 || b == g.n_beta - 1) continue;
-          lum.push_back(y);
-          column_of.push_back(a);
-          pdf.push_back(mat.pdf(c.u, c.v, to_vector(l), view));
-        }
-      REQUIRE(mean > 0);
-      double lo = 1e300, hi = 0;
-      for (size_t i = 0; i < lum.size(); ++i) {
-        const double ratio =
-            pdf[i] / (lum[i] + kSamplingFloor * mean + kSamplingColumnFloor * column_mean[size_t(column_of[i])]);
-        lo = std::min(lo, ratio);
-        hi = std::max(hi, ratio);
+    // The floors: kSamplingFloor x the mean luminance over all nodes, and kSamplingColumnFloor x
+    // the mean over s (trapezoid) of the node's alpha column. Boundary nodes are evaluated just
+    // inside the horizon, where the decoder still reads the node.
+    std::vector<double> lum, pdf, column_mean(size_t(g.n_alpha), 0.0);
+    std::vector<int> column_of;
+    double mean = 0;
+    for (int a = 0; a < g.n_alpha; ++a)
+      for (int b = 0; b < g.n_beta; ++b) {
+        const double alpha = std::clamp(g.alpha_node(a), -89.999999, 89.999999);
+        const double beta = std::clamp(g.beta_node(b), -89.999999, 89.999999);
+        const Direction l = from_onion({alpha, beta}, vd.phi);
+        const double y = sampling_luminance(mat.evaluate(c.u, c.v, l, vd), mat.hdr());
+        mean += y / (g.n_alpha * g.n_beta);
+        column_mean[size_t(a)] += y * ((b == 0 || b == g.n_beta - 1) ? 0.5 : 1.0) / (g.n_beta - 1);
+        if (a == 0 || b == 0 || a == g.n_alpha - 1 || b == g.n_beta - 1) continue;
+        lum.push_back(y);
+        column_of.push_back(a);
+        pdf.push_back(mat.pdf(c.u, c.v, to_vector(l), view));
       }
-      CHECK(hi / lo < 1.001);
-      // ... and it is not flat: the material's luminance varies over the hemisphere.
-      CHECK(*std::max_element(pdf.begin(), pdf.end()) > 1.2 * *std::min_element(pdf.begin(), pdf.end()));
+    REQUIRE(mean > 0);
+    double lo = 1e300, hi = 0;
+    for (size_t i = 0; i < lum.size(); ++i) {
+      const double ratio =
+          pdf[i] / (lum[i] + kSamplingFloor * mean + kSamplingColumnFloor * column_mean[size_t(column_of[i])]);
+      lo = std::min(lo, ratio);
+      hi = std::max(hi, ratio);
     }
-  }
+    CHECK(hi / lo < 1.001);
+    // ... and it is not flat: the material's luminance varies over the hemisphere.
+    CHECK(*std::max_element(pdf.begin(), pdf.end()) > 1.2 * *std::min_element(pdf.begin(), pdf.end()));
+  });
 }
 
 TEST_CASE("continuity (Sec. 5.2): nearby (xi1, xi2) give nearby directions over the whole square") {
-  for (const Case& c : cases()) {
-    const BtfMaterial mat = c.db->material(c.material);
-    for (const Direction& vd : kViews) {
-      const std::string material = c.material;
-      CAPTURE(material);
-      CAPTURE(vd.theta);
-      const Vec3 view = to_vector(vd);
-      // Over a 101 x 101 grid of pairs (edges included), the largest angle between the directions of
-      // neighbours at distance d; a jump anywhere would keep it from shrinking with d. Near the poles
-      // A and B (sin beta = +-1) the angle to the pole is ~ sqrt(2 (1 - sin beta)), so it shrinks
-      // like sqrt(d) there (d / 100 -> angle / 10), linearly elsewhere. (Beside a very bright
-      // column of an HDR material the slope is steep -- the region of (xi1, xi2) that maps to the
-      // dark column is small -- so the checks use small d.)
-      auto worst = [&](double d) {
-        double w = 0;
-        for (int i = 0; i <= 100; ++i)
-          for (int j = 0; j <= 100; ++j) {
-            const double x1 = std::min(i / 100.0, 1.0 - d), x2 = std::min(j / 100.0, 1.0 - d);
-            const Vec3 p = mat.sample(c.u, c.v, view, x1, x2).direction;
-            w = std::max({w, angle(p, mat.sample(c.u, c.v, view, x1 + d, x2).direction),
-                          angle(p, mat.sample(c.u, c.v, view, x1, x2 + d).direction)});
-          }
-        return w;
-      };
-      const double w6 = worst(1e-6), w8 = worst(1e-8);
-      CAPTURE(w6);
-      CAPTURE(w8);
-      CHECK(w6 < 0.05);
-      CHECK(w8 < w6 / 5);
-    }
-  }
+  for_each_view(kViews, [&](const Case& c, const BtfMaterial& mat, const Direction&, const Vec3& view) {
+    // Over a 101 x 101 grid of pairs (edges included), the largest angle between the directions of
+    // neighbours at distance d; a jump anywhere would keep it from shrinking with d. Near the poles
+    // A and B (sin beta = +-1) the angle to the pole is ~ sqrt(2 (1 - sin beta)), so it shrinks
+    // like sqrt(d) there (d / 100 -> angle / 10), linearly elsewhere. (Beside a very bright
+    // column of an HDR material the slope is steep -- the region of (xi1, xi2) that maps to the
+    // dark column is small -- so the checks use small d.)
+    auto worst = [&](double d) {
+      double w = 0;
+      for (int i = 0; i <= 100; ++i)
+        for (int j = 0; j <= 100; ++j) {
+          const double x1 = std::min(i / 100.0, 1.0 - d), x2 = std::min(j / 100.0, 1.0 - d);
+          const Vec3 p = mat.sample(c.u, c.v, view, x1, x2).direction;
+          w = std::max({w, angle(p, mat.sample(c.u, c.v, view, x1 + d, x2).direction),
+                        angle(p, mat.sample(c.u, c.v, view, x1, x2 + d).direction)});
+        }
+      return w;
+    };
+    const double w6 = worst(1e-6), w8 = worst(1e-8);
+    CAPTURE(w6);
+    CAPTURE(w8);
+    CHECK(w6 < 0.05);
+    CHECK(w8 < w6 / 5);
+  });
 }
 
 TEST_CASE("albedo matches a brute-force integration of the evaluated reflectance within 1%") {
