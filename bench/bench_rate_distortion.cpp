@@ -386,6 +386,7 @@ void keep_sample(const bench::Args& args, bool quick, const std::string& key, co
 // The section: the method, then every kept sample with the run that measured it, then the tally.
 void write_rd_section(const bench::Args& args, bool quick) {
   std::vector<nlohmann::json> kept;
+  std::filesystem::create_directories(sample_store(args, quick));  // a run may measure no sample
   for (const auto& f : std::filesystem::directory_iterator(sample_store(args, quick)))
     if (f.path().extension() == ".json") kept.push_back(nlohmann::json::parse(std::ifstream(f.path())));
   std::sort(kept.begin(), kept.end(), [](const auto& a, const auto& b) { return a["order"] < b["order"]; });
