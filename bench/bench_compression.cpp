@@ -4,11 +4,11 @@
 #include <sstream>
 
 #include "bench/bench_common.h"
-#include "pipeline/compress.h"
-#include "pipeline/database.h"
-#include "pipeline/metrics.h"
-#include "pipeline/reconstruct.h"
-#include "pipeline/synthetic.h"
+#include "pipeline/encode/compress.h"
+#include "pipeline/format/database.h"
+#include "pipeline/metrics/metrics.h"
+#include "pipeline/decode/reconstruct.h"
+#include "pipeline/io/synthetic.h"
 
 using namespace btfvq;
 

@@ -18,11 +18,11 @@
 #include <tuple>
 
 #include "bench/bench_common.h"
-#include "pipeline/btfbase.h"
-#include "pipeline/decoder.h"
-#include "pipeline/image.h"
-#include "pipeline/opencl_runtime.h"
-#include "pipeline/reconstruct.h"
+#include "pipeline/io/btfbase.h"
+#include "pipeline/decode/decoder.h"
+#include "pipeline/io/image.h"
+#include "pipeline/runtime/opencl_runtime.h"
+#include "pipeline/decode/reconstruct.h"
 
 using namespace btfvq;
 

@@ -9,11 +9,11 @@
 #include <sstream>
 
 #include "bench/bench_common.h"
-#include "pipeline/btfbase.h"
-#include "pipeline/compress.h"
-#include "pipeline/database.h"
-#include "pipeline/decoder.h"
-#include "pipeline/synthetic.h"
+#include "pipeline/io/btfbase.h"
+#include "pipeline/encode/compress.h"
+#include "pipeline/format/database.h"
+#include "pipeline/decode/decoder.h"
+#include "pipeline/io/synthetic.h"
 
 using namespace btfvq;
 

@@ -34,12 +34,12 @@
 #include "bench/baselines/per_view_pca.h"
 #include "bench/baselines/texel_vq.h"
 #include "bench/bench_common.h"
-#include "pipeline/btfbase.h"
-#include "pipeline/compress.h"
-#include "pipeline/database.h"
-#include "pipeline/metrics.h"
-#include "pipeline/reconstruct.h"
-#include "pipeline/synthetic.h"
+#include "pipeline/io/btfbase.h"
+#include "pipeline/encode/compress.h"
+#include "pipeline/format/database.h"
+#include "pipeline/metrics/metrics.h"
+#include "pipeline/decode/reconstruct.h"
+#include "pipeline/io/synthetic.h"
 
 using namespace btfvq;
 using baselines::BaselinePoint;
@@ -394,7 +394,7 @@ void write_rd_section(const bench::Args& args, bool quick) {
   std::ostringstream md;
   md << "Each sample is compressed by btfvq (`compress_material` with configs/pipeline.json's `thresholds.ssim` "
         "scaled by each factor; ratio = raw bytes / .btfdb file bytes) and by four baselines built in bench/baselines "
-        "with Eigen, each decoded at the 81 x 81 measured directions and evaluated with pipeline/metrics.h. Baseline "
+        "with Eigen, each decoded at the 81 x 81 measured directions and evaluated with pipeline/metrics/metrics.h. Baseline "
         "bytes count every stored byte: factors and code-vectors 8-bit, each vector with its own float32 [min, max] "
         "range, VQ indices at ceil(log2 N) bits. Baselines: **per-view PCA** (a PCA per view over texels' 81 lights x "
         "RGB, C components, paper 000's \"PCA\" column uses C = 5); **grouped PCA** (seed 002: 3 neighbouring views "

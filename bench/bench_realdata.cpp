@@ -8,11 +8,11 @@
 #include <sstream>
 
 #include "bench/bench_common.h"
-#include "pipeline/btfbase.h"
-#include "pipeline/compress.h"
-#include "pipeline/database.h"
-#include "pipeline/metrics.h"
-#include "pipeline/reconstruct.h"
+#include "pipeline/io/btfbase.h"
+#include "pipeline/encode/compress.h"
+#include "pipeline/format/database.h"
+#include "pipeline/metrics/metrics.h"
+#include "pipeline/decode/reconstruct.h"
 
 using namespace btfvq;
 
@@ -99,7 +99,7 @@ int main(int argc, char** argv) {
   }
   md << "\nTimes are wall seconds on the shared 2-core machine (phase 3 uses both cores); the peak memory is the "
         "process's resident maximum so far (it holds the decoded 256 x 256 sample, 1.3 GB, throughout; the encoder "
-        "resamples one tile of texels at a time, see pipeline/compress.cpp).\n";
+        "resamples one tile of texels at a time, see pipeline/encode/compress.cpp).\n";
   figures["original"] = {{"bytes", kOriginalBytes}, {"ratio", kOriginalRatio}};
   figures["decode_seconds"] = decode_seconds;
   bench::write_section(args, "Real data: proposte compressed again", 32, md.str(), figures);

@@ -5,8 +5,8 @@
 #include <vector>
 
 #include "bench/bench_common.h"
-#include "pipeline/opencl_runtime.h"
-#include "pipeline/resample.h"
+#include "pipeline/runtime/opencl_runtime.h"
+#include "pipeline/encode/resample.h"
 
 using namespace btfvq;
 
@@ -40,7 +40,7 @@ int main(int argc, char** argv) {
   char buf[1024];
   std::snprintf(buf, sizeof buf,
                 "Bonn 81 x 81 LDR input onto the default 16 x 7 x 11 x 11 grid (3 channels), two-step local RBF "
-                "(pipeline/resample.h). Operator build: %.2f s.\n\n"
+                "(pipeline/encode/resample.h). Operator build: %.2f s.\n\n"
                 "| path | texels/s | seconds per 256 x 256 sample |\n|---|---|---|\n"
                 "| OpenCL (%s) | %.0f | %.1f |\n| C++ reference (1 thread) | %.0f | %.1f |\n\n"
                 "OpenCL / reference: **%.1fx** (same work, same run).\n",

@@ -1,4 +1,4 @@
-// Single-thread throughput of the renderer API (pipeline/renderer_api.h) on the original
+// Single-thread throughput of the renderer API (include/btfvq/renderer_api.h) on the original
 // compressor's databases: BTF evaluations, importance samples of the light direction (paper Sec.
 // 5.2), pdf queries and albedo, per CPU second of one thread; and the batch decode (all cores).
 // Paper Sec. 6, one core: 0.31-1.36 M evaluations/s and 0.45-1.6 M samples/s.
@@ -7,12 +7,12 @@
 #include <sstream>
 
 #include "bench/bench_common.h"
-#include "pipeline/btfbase.h"
-#include "pipeline/decoder.h"
-#include "pipeline/image.h"
-#include "pipeline/opencl_runtime.h"
-#include "pipeline/preview.h"
-#include "pipeline/renderer_api.h"
+#include "pipeline/io/btfbase.h"
+#include "pipeline/decode/decoder.h"
+#include "pipeline/io/image.h"
+#include "pipeline/runtime/opencl_runtime.h"
+#include "pipeline/decode/preview.h"
+#include <btfvq/renderer_api.h>
 
 using namespace btfvq;
 
@@ -80,7 +80,7 @@ int main(int argc, char** argv) {
   const size_t n = args.quick ? (1 << 18) : (1 << 20);
   std::ostringstream md;
   nlohmann::json figures;
-  md << "BtfMaterial (pipeline/renderer_api.h) on the original compressor's databases (../shared/testdata/btfbase), " << n
+  md << "BtfMaterial (include/btfvq/renderer_api.h) on the original compressor's databases (../shared/testdata/btfbase), " << n
      << " queries per pattern, directions as unit vectors. Single-thread rates per CPU second (M/s); random: texel, "
         "light, view and (xi1, xi2) uniformly random; coherent: runs of 256 neighbouring texels under one light and "
         "view. Batch: Decoder::decode on " << ComputeDevice::get().description() << " (wall time, every core).\n\n"
@@ -109,7 +109,7 @@ int main(int argc, char** argv) {
   md << "\nPaper (Sec. 6, one core of a 2.83 GHz Xeon): 0.31-1.36 M evaluations/s and 0.45-1.6 M samples/s. "
         "Sampling reads four precomputed P2 luminance tables per query (docs/sampling.md); albedo is a 3 x 3 "
         "Gauss-Legendre rule per onion cell (900 evaluations).\n";
-  md << "\n" << pictures.str() << "\nPreviews (pipeline/preview.h) of the original compressor's databases on a sphere under one "
+  md << "\n" << pictures.str() << "\nPreviews (pipeline/decode/preview.h) of the original compressor's databases on a sphere under one "
         "directional light, decoded by the batch decode.\n";
   bench::write_section(args, "Renderer API: evaluation and importance sampling", 45, md.str(), figures);
   return 0;

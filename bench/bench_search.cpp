@@ -1,4 +1,4 @@
-// Phase 3 (the frozen search, pipeline/frozen_search.h) on the same texels and the same code-books,
+// Phase 3 (the frozen search, pipeline/encode/frozen_search.h) on the same texels and the same code-books,
 // by each path, in one run: the batched kernel on OpenCL (the default), its C++ reference and the
 // pruned CPU search (the default without OpenCL). Also how the cost grows with the code-books (P4
 // size), and phase 3 of a whole sample compressed once per path.
@@ -6,14 +6,14 @@
 #include <sstream>
 
 #include "bench/bench_common.h"
-#include "pipeline/compress.h"
-#include "pipeline/config.h"
-#include "pipeline/database.h"
-#include "pipeline/frozen_search.h"
-#include "pipeline/opencl_runtime.h"
-#include "pipeline/resample.h"
-#include "pipeline/schedule.h"
-#include "pipeline/synthetic.h"
+#include "pipeline/encode/compress.h"
+#include "pipeline/util/config.h"
+#include "pipeline/format/database.h"
+#include "pipeline/encode/frozen_search.h"
+#include "pipeline/runtime/opencl_runtime.h"
+#include "pipeline/encode/resample.h"
+#include "pipeline/encode/schedule.h"
+#include "pipeline/io/synthetic.h"
 
 using namespace btfvq;
 

@@ -5,9 +5,9 @@
 #include <sstream>
 
 #include "bench/bench_common.h"
-#include "pipeline/compress.h"
-#include "pipeline/database.h"
-#include "pipeline/synthetic.h"
+#include "pipeline/encode/compress.h"
+#include "pipeline/format/database.h"
+#include "pipeline/io/synthetic.h"
 
 using namespace btfvq;
 

@@ -3,8 +3,8 @@
 #include <sstream>
 
 #include "bench/bench_common.h"
-#include "pipeline/opencl_runtime.h"
-#include "pipeline/synthetic.h"
+#include "pipeline/runtime/opencl_runtime.h"
+#include "pipeline/io/synthetic.h"
 
 using namespace btfvq;
 

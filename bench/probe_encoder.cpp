@@ -11,8 +11,8 @@
 #include <stdexcept>
 #include <string>
 
-#include "pipeline/config.h"
-#include "pipeline/schedule.h"
+#include "pipeline/util/config.h"
+#include "pipeline/encode/schedule.h"
 #include "../tests/support/synthetic_texels.h"
 
 using namespace btfvq;

@@ -8,11 +8,11 @@
 #include <map>
 #include <string>
 
-#include "pipeline/btfbase.h"
-#include "pipeline/compress.h"
-#include "pipeline/database.h"
-#include "pipeline/synthetic.h"
-#include "pipeline/packing.h"
+#include "pipeline/io/btfbase.h"
+#include "pipeline/encode/compress.h"
+#include "pipeline/format/database.h"
+#include "pipeline/io/synthetic.h"
+#include "pipeline/format/packing.h"
 
 using namespace btfvq;
 

@@ -4,7 +4,7 @@
 #include <cmath>
 #include <filesystem>
 
-#include "pipeline/error.h"
+#include <btfvq/error.h>
 
 namespace btfvq::cli {
 

@@ -7,8 +7,8 @@
 #include <string>
 #include <vector>
 
-#include "pipeline/directions.h"
-#include "pipeline/error.h"
+#include <btfvq/directions.h>
+#include <btfvq/error.h>
 
 namespace btfvq::cli {
 

@@ -2,8 +2,8 @@
 #include <iostream>
 
 #include "client/cli.h"
-#include "pipeline/btfbase.h"
-#include "pipeline/database.h"
+#include "pipeline/io/btfbase.h"
+#include "pipeline/format/database.h"
 
 namespace btfvq::cli {
 namespace {

@@ -6,9 +6,9 @@
 
 #include "client/cli.h"
 #include "client/progress_bar.h"
-#include "pipeline/compress.h"
-#include "pipeline/database.h"
-#include "pipeline/sample_io.h"
+#include "pipeline/encode/compress.h"
+#include "pipeline/format/database.h"
+#include "pipeline/io/sample_io.h"
 
 namespace btfvq::cli {
 namespace {

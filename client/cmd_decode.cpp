@@ -3,9 +3,9 @@
 #include <iostream>
 
 #include "client/cli.h"
-#include "pipeline/database.h"
-#include "pipeline/reconstruct.h"
-#include "pipeline/sample_io.h"
+#include "pipeline/format/database.h"
+#include "pipeline/decode/reconstruct.h"
+#include "pipeline/io/sample_io.h"
 
 namespace btfvq::cli {
 namespace {

@@ -2,7 +2,7 @@
 #include <iostream>
 
 #include "client/cli.h"
-#include "pipeline/opencl_runtime.h"
+#include "pipeline/runtime/opencl_runtime.h"
 
 namespace btfvq::cli {
 namespace {

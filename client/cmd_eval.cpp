@@ -6,10 +6,10 @@
 #include <nlohmann/json.hpp>
 
 #include "client/cli.h"
-#include "pipeline/database.h"
-#include "pipeline/metrics.h"
-#include "pipeline/reconstruct.h"
-#include "pipeline/sample_io.h"
+#include "pipeline/format/database.h"
+#include "pipeline/metrics/metrics.h"
+#include "pipeline/decode/reconstruct.h"
+#include "pipeline/io/sample_io.h"
 
 namespace btfvq::cli {
 namespace {

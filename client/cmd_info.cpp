@@ -5,9 +5,9 @@
 #include <string>
 
 #include "client/cli.h"
-#include "pipeline/database.h"
-#include "pipeline/error.h"
-#include "pipeline/sample_io.h"
+#include "pipeline/format/database.h"
+#include <btfvq/error.h>
+#include "pipeline/io/sample_io.h"
 
 namespace btfvq::cli {
 namespace {

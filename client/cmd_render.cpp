@@ -6,11 +6,11 @@
 #include <iostream>
 
 #include "client/cli.h"
-#include "pipeline/database.h"
-#include "pipeline/decoder.h"
-#include "pipeline/image.h"
-#include "pipeline/preview.h"
-#include "pipeline/reconstruct.h"
+#include "pipeline/format/database.h"
+#include "pipeline/decode/decoder.h"
+#include "pipeline/io/image.h"
+#include "pipeline/decode/preview.h"
+#include "pipeline/decode/reconstruct.h"
 
 namespace btfvq::cli {
 namespace {

@@ -3,7 +3,7 @@
 
 #include "client/cli.h"
 #include "client/http_client.h"
-#include "pipeline/error.h"
+#include <btfvq/error.h>
 
 namespace btfvq::cli {
 namespace {

@@ -8,8 +8,8 @@
 #include "client/cli.h"
 #include "client/http_client.h"
 #include "client/progress_bar.h"
-#include "pipeline/error.h"
-#include "pipeline/sha256.h"
+#include <btfvq/error.h>
+#include "pipeline/util/sha256.h"
 
 namespace btfvq::cli {
 namespace {

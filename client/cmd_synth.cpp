@@ -6,9 +6,9 @@
 #include <string>
 
 #include "client/cli.h"
-#include "pipeline/error.h"
-#include "pipeline/sample_io.h"
-#include "pipeline/synthetic.h"
+#include <btfvq/error.h>
+#include "pipeline/io/sample_io.h"
+#include "pipeline/io/synthetic.h"
 
 namespace btfvq::cli {
 namespace {

@@ -7,7 +7,7 @@
 #include "client/cli.h"
 #include "client/http_client.h"
 #include "client/progress_bar.h"
-#include "pipeline/error.h"
+#include <btfvq/error.h>
 
 namespace btfvq::cli {
 namespace {

@@ -7,8 +7,8 @@
 #include <fstream>
 
 #include "client/cli.h"
-#include "pipeline/error.h"
-#include "pipeline/sha256.h"
+#include <btfvq/error.h>
+#include "pipeline/util/sha256.h"
 
 namespace btfvq::cli {
 namespace fs = std::filesystem;

@@ -9,7 +9,7 @@
 #include <iostream>
 
 #include "client/cli.h"
-#include "pipeline/error.h"
+#include <btfvq/error.h>
 
 namespace {
 

@@ -1,4 +1,4 @@
-// Batch decoder F(x, y, omega_i, omega_v): the same steps as Decoder::evaluate (pipeline/decoder.cpp)
+// Batch decoder F(x, y, omega_i, omega_v): the same steps as Decoder::evaluate (pipeline/decode/decoder.cpp)
 // and FORMAT.md "Decoding one value", in 32-bit floats, DECODE_WIDTH queries per work-item.
 //
 // Why float is enough: every interpolation is continuous across cell boundaries, and the one

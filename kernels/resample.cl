@@ -1,5 +1,5 @@
 // RBF resampling of measured texels onto the (phi_v, theta_v, alpha, beta) grid as a fixed sparse
-// operator (pipeline/resample.h; C++ reference: ResampleOperator::apply_reference).
+// operator (pipeline/encode/resample.h; C++ reference: ResampleOperator::apply_reference).
 //
 // Every work-item handles an "octet" of 8 neighbouring texels with explicit float8 arithmetic (a CPU
 // compiler vectorises inner loops, not the work-item loop around them), and each octet's data is

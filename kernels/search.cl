@@ -1,4 +1,4 @@
-// Batched phase-3 search (pipeline/frozen_search.h, docs/similarity.md "Batched search").
+// Batched phase-3 search (pipeline/encode/frozen_search.h, docs/similarity.md "Batched search").
 //
 // One work-item searches one texel: it scores its candidate P4 entries in the given (proxy) order,
 // each with its least-squares RGB scale, and abandons a candidate as soon as more than the outlier
@@ -12,7 +12,7 @@
 // of rows x cols samples (11 x 11 by default) is held as rows of 16 float lanes, padded with a zero
 // border of `radius` rows and columns. The truncated box filter of the window cross term is then
 // shifted adds of whole rows (zeros add nothing) and every SSIM value of a row is one float16
-// expression. The C++ reference is search_reference() in pipeline/frozen_search.cpp.
+// expression. The C++ reference is search_reference() in pipeline/encode/frozen_search.cpp.
 //
 // Layouts (padded block of one plane channel: values (rows + 2 radius) x 16, window means rows x 16,
 // window variances rows x 16; sample (r, c) at padded row r + radius, lane c + radius):
@@ -124,7 +124,7 @@ __kernel void search_texels(__global const float16* queries, __global const floa
   __global float16* terms = scratch + (long)t * planes * 3 * rows * 2;
   const float16 lane = (float16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
   const int16 used = isgreaterequal(lane, (float16)(float)radius) & isless(lane, (float16)(float)(radius + cols));
-  // Best score so far, lowered by the bracket margin (pipeline/frozen_search.cpp kMargin).
+  // Best score so far, lowered by the bracket margin (pipeline/encode/frozen_search.cpp kMargin).
   float floor = -1e30f;
   // Planes in the order they are scored: once the first candidate completes, the planes that hold
   // most of its lowest values come first, since that is where the other candidates fail too, and a

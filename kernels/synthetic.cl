@@ -1,6 +1,6 @@
-// Rendering of a synthetic BTF from a height-field material (pipeline/synthetic.h).
+// Rendering of a synthetic BTF from a height-field material (pipeline/io/synthetic.h).
 //
-// This file is both the OpenCL program and, included by pipeline/synthetic.cpp with a small prelude,
+// This file is both the OpenCL program and, included by pipeline/io/synthetic.cpp with a small prelude,
 // the C++ reference: one text, so the two paths cannot drift apart. It therefore sticks to the C
 // subset both languages share (scalar floats, a struct, no vector types, no OpenCL-only built-ins);
 // only the __kernel entry points at the end are OpenCL-only.

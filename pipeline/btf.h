@@ -7,7 +7,7 @@
 #include <string>
 #include <vector>
 
-#include "pipeline/directions.h"
+#include <btfvq/directions.h>
 
 namespace btfvq {
 

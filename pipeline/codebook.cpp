@@ -1,6 +1,6 @@
 #include "pipeline/codebook.h"
 
-#include "pipeline/error.h"
+#include <btfvq/error.h>
 
 namespace btfvq {
 

@@ -1,4 +1,4 @@
-#include "pipeline/colour.h"
+#include <btfvq/colour.h>
 
 #include <algorithm>
 #include <cmath>

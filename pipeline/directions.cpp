@@ -1,4 +1,4 @@
-#include "pipeline/directions.h"
+#include <btfvq/directions.h>
 
 #include <algorithm>
 #include <cmath>

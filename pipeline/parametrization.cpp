@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "pipeline/error.h"
+#include <btfvq/error.h>
 
 namespace btfvq {
 

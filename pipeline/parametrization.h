@@ -16,7 +16,7 @@
 // and back: [x, y, z] = [sin(beta), sin(alpha) cos(beta), cos(alpha) cos(beta)] (paper eq. 2).
 #include <cstddef>
 
-#include "pipeline/directions.h"
+#include <btfvq/directions.h>
 
 namespace btfvq {
 

@@ -1,6 +1,6 @@
 #pragma once
 // Errors that only the HTTP shell raises. Each maps to one status code in routes.cpp.
-#include "pipeline/error.h"
+#include <btfvq/error.h>
 
 namespace btfvq::server {
 

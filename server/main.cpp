@@ -8,7 +8,7 @@
 #include <iostream>
 #include <thread>
 
-#include "pipeline/error.h"
+#include <btfvq/error.h>
 #include "server/http_server.h"
 #include "server/server_config.h"
 #include "server/service.h"

@@ -6,11 +6,11 @@
 #include <fstream>
 #include <iterator>
 
-#include "pipeline/compress.h"
-#include "pipeline/database.h"
-#include "pipeline/error.h"
-#include "pipeline/sample_io.h"
-#include "pipeline/synthetic.h"
+#include "pipeline/encode/compress.h"
+#include "pipeline/format/database.h"
+#include <btfvq/error.h>
+#include "pipeline/io/sample_io.h"
+#include "pipeline/io/synthetic.h"
 #include "server/executor.h"
 
 namespace btfvq::server {

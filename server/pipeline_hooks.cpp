@@ -2,10 +2,10 @@
 // job's pipeline overrides against configs/pipeline.json: every key must exist in the defaults with
 // the same JSON type, and the merged settings must pass the pipeline's own validation (ranges,
 // NaN), so that a typo or an out-of-range threshold is a 400 now rather than a failed job later.
-#include "pipeline/compress.h"
-#include "pipeline/config.h"
-#include "pipeline/error.h"
-#include "pipeline/synthetic.h"
+#include "pipeline/encode/compress.h"
+#include "pipeline/util/config.h"
+#include <btfvq/error.h>
+#include "pipeline/io/synthetic.h"
 #include "server/executor.h"
 
 namespace btfvq::server {

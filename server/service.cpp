@@ -1,6 +1,6 @@
 #include "server/service.h"
 
-#include "pipeline/sample_io.h"
+#include "pipeline/io/sample_io.h"
 
 #include <fcntl.h>
 #include <spdlog/spdlog.h>
@@ -12,7 +12,7 @@
 #include <regex>
 #include <sstream>
 
-#include "pipeline/error.h"
+#include <btfvq/error.h>
 #include "server/errors.h"
 
 namespace btfvq::server {

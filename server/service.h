@@ -23,9 +23,9 @@
 #include <thread>
 #include <vector>
 
-#include "pipeline/preview.h"
-#include "pipeline/renderer_api.h"
-#include "pipeline/sha256.h"
+#include "pipeline/decode/preview.h"
+#include <btfvq/renderer_api.h>
+#include "pipeline/util/sha256.h"
 #include "server/executor.h"
 #include "server/store.h"
 
@@ -106,7 +106,7 @@ class Service {
   nlohmann::json databases();
   nlohmann::json database(const std::string& name);
   ContentInfo content(const std::string& name, std::optional<int64_t> version);
-  // PNG preview (pipeline/preview.h) of a material of the latest version of a database.
+  // PNG preview (pipeline/decode/preview.h) of a material of the latest version of a database.
   std::vector<uint8_t> preview(const std::string& database, const std::string& material, const PreviewOptions& options);
 
   void count_bytes_served(uint64_t n) { bytes_served_ += n; }

@@ -2,7 +2,7 @@
 
 #include <sqlite3.h>
 
-#include "pipeline/error.h"
+#include <btfvq/error.h>
 
 namespace btfvq::server {
 namespace {

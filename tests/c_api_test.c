@@ -10,7 +10,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "pipeline/btfvq_c.h"
+#include <btfvq/btfvq_c.h>
 
 static int failures = 0;
 

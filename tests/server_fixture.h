@@ -22,9 +22,9 @@
 #include <thread>
 #include <vector>
 
-#include "pipeline/error.h"
-#include "pipeline/sample_io.h"
-#include "pipeline/sha256.h"
+#include <btfvq/error.h>
+#include "pipeline/io/sample_io.h"
+#include "pipeline/util/sha256.h"
 #include "server/http_server.h"
 #include "server/service.h"
 #include "support/test_paths.h"

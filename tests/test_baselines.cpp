@@ -11,9 +11,9 @@
 #include "bench/baselines/pca.h"
 #include "bench/baselines/per_view_pca.h"
 #include "bench/baselines/texel_vq.h"
-#include "pipeline/config.h"
-#include "pipeline/error.h"
-#include "pipeline/metrics.h"
+#include "pipeline/util/config.h"
+#include <btfvq/error.h>
+#include "pipeline/metrics/metrics.h"
 
 using namespace btfvq;
 using namespace btfvq::baselines;

@@ -6,9 +6,9 @@
 #include <random>
 #include <sstream>
 
-#include "pipeline/btfbase.h"
-#include "pipeline/decoder.h"
-#include "pipeline/error.h"
+#include "pipeline/io/btfbase.h"
+#include "pipeline/decode/decoder.h"
+#include <btfvq/error.h>
 #include "support/test_paths.h"
 
 using namespace btfvq;

@@ -5,9 +5,9 @@
 #include <cstdio>
 #include <string>
 
-#include "pipeline/btfbase.h"
-#include "pipeline/database.h"
-#include "pipeline/renderer_api.h"
+#include "pipeline/io/btfbase.h"
+#include "pipeline/format/database.h"
+#include <btfvq/renderer_api.h>
 #include "support/test_paths.h"
 
 using namespace btfvq;

@@ -5,9 +5,9 @@
 #include <cstdio>
 #include <filesystem>
 
-#include "pipeline/btfbase.h"
-#include "pipeline/database.h"
-#include "pipeline/reconstruct.h"
+#include "pipeline/io/btfbase.h"
+#include "pipeline/format/database.h"
+#include "pipeline/decode/reconstruct.h"
 #include "support/test_paths.h"
 
 using namespace btfvq;

@@ -2,7 +2,7 @@
 
 #include <random>
 
-#include "pipeline/colour.h"
+#include <btfvq/colour.h>
 
 using namespace btfvq;
 

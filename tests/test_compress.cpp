@@ -4,12 +4,12 @@
 #include <filesystem>
 #include <fstream>
 
-#include "pipeline/compress.h"
-#include "pipeline/database.h"
-#include "pipeline/error.h"
-#include "pipeline/metrics.h"
-#include "pipeline/reconstruct.h"
-#include "pipeline/synthetic.h"
+#include "pipeline/encode/compress.h"
+#include "pipeline/format/database.h"
+#include <btfvq/error.h>
+#include "pipeline/metrics/metrics.h"
+#include "pipeline/decode/reconstruct.h"
+#include "pipeline/io/synthetic.h"
 #include "support/test_paths.h"
 
 using namespace btfvq;

@@ -2,8 +2,8 @@
 
 #include <cmath>
 
-#include "pipeline/config.h"
-#include "pipeline/error.h"
+#include "pipeline/util/config.h"
+#include <btfvq/error.h>
 
 using namespace btfvq;
 

@@ -5,9 +5,9 @@
 #include <fstream>
 #include <random>
 
-#include "pipeline/database.h"
-#include "pipeline/error.h"
-#include "pipeline/packing.h"
+#include "pipeline/format/database.h"
+#include <btfvq/error.h>
+#include "pipeline/format/packing.h"
 #include "support/test_paths.h"
 
 using namespace btfvq;

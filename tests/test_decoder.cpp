@@ -6,9 +6,9 @@
 #include <limits>
 #include <random>
 
-#include "pipeline/btfbase.h"
-#include "pipeline/decoder.h"
-#include "pipeline/opencl_runtime.h"
+#include "pipeline/io/btfbase.h"
+#include "pipeline/decode/decoder.h"
+#include "pipeline/runtime/opencl_runtime.h"
 #include "support/test_paths.h"
 
 using namespace btfvq;

@@ -5,9 +5,9 @@
 #include <vector>
 
 #include "pipeline/codebook.h"
-#include "pipeline/config.h"
-#include "pipeline/encoder.h"
-#include "pipeline/error.h"
+#include "pipeline/util/config.h"
+#include "pipeline/encode/encoder.h"
+#include <btfvq/error.h>
 #include "support/synthetic_texels.h"
 
 using namespace btfvq;

@@ -1,9 +1,9 @@
-// The batched phase-3 search (pipeline/frozen_search.h, kernels/search.cl): the kernel agrees with
+// The batched phase-3 search (pipeline/encode/frozen_search.h, kernels/search.cl): the kernel agrees with
 // its C++ reference, its brackets hold the exact scores, and every path picks the same entries.
 #include <doctest/doctest.h>
 
-#include "pipeline/frozen_search.h"
-#include "pipeline/opencl_runtime.h"
+#include "pipeline/encode/frozen_search.h"
+#include "pipeline/runtime/opencl_runtime.h"
 #include "support/synthetic_texels.h"
 
 using namespace btfvq;

@@ -8,8 +8,8 @@
 #include <string>
 #include <vector>
 
-#include "pipeline/error.h"
-#include "pipeline/metrics.h"
+#include <btfvq/error.h>
+#include "pipeline/metrics/metrics.h"
 #include "support/test_paths.h"
 
 using namespace btfvq;

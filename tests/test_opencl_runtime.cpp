@@ -2,8 +2,8 @@
 
 #include <cstdlib>
 
-#include "pipeline/opencl_runtime.h"
-#include "pipeline/resources.h"
+#include "pipeline/runtime/opencl_runtime.h"
+#include "pipeline/runtime/resources.h"
 #include "support/test_paths.h"
 
 using namespace btfvq;

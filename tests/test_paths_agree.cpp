@@ -4,12 +4,12 @@
 // 24 x 24 a few code-book entries flipped by that rounding moved the ratio by 2.3%.
 #include <doctest/doctest.h>
 
-#include "pipeline/compress.h"
-#include "pipeline/database.h"
-#include "pipeline/metrics.h"
-#include "pipeline/opencl_runtime.h"
-#include "pipeline/reconstruct.h"
-#include "pipeline/synthetic.h"
+#include "pipeline/encode/compress.h"
+#include "pipeline/format/database.h"
+#include "pipeline/metrics/metrics.h"
+#include "pipeline/runtime/opencl_runtime.h"
+#include "pipeline/decode/reconstruct.h"
+#include "pipeline/io/synthetic.h"
 
 using namespace btfvq;
 

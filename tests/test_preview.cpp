@@ -1,4 +1,4 @@
-// Preview renders (pipeline/preview.h, `btfvq render --scene`): geometry, lights, options, the CLI.
+// Preview renders (pipeline/decode/preview.h, `btfvq render --scene`): geometry, lights, options, the CLI.
 #include <doctest/doctest.h>
 
 #include <OpenImageIO/imageio.h>
@@ -7,11 +7,11 @@
 #include <cmath>
 #include <filesystem>
 
-#include "pipeline/btfbase.h"
-#include "pipeline/database.h"
-#include "pipeline/decoder.h"
-#include "pipeline/error.h"
-#include "pipeline/preview.h"
+#include "pipeline/io/btfbase.h"
+#include "pipeline/format/database.h"
+#include "pipeline/decode/decoder.h"
+#include <btfvq/error.h>
+#include "pipeline/decode/preview.h"
 #include "support/test_paths.h"
 
 using namespace btfvq;

@@ -4,8 +4,8 @@
 #include <limits>
 #include <random>
 
-#include "pipeline/error.h"
-#include "pipeline/proxy_index.h"
+#include <btfvq/error.h>
+#include "pipeline/encode/proxy_index.h"
 
 using namespace btfvq;
 

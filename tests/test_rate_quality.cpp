@@ -5,12 +5,12 @@
 
 #include <string>
 
-#include "pipeline/compress.h"
-#include "pipeline/config.h"
-#include "pipeline/database.h"
-#include "pipeline/metrics.h"
-#include "pipeline/reconstruct.h"
-#include "pipeline/synthetic.h"
+#include "pipeline/encode/compress.h"
+#include "pipeline/util/config.h"
+#include "pipeline/format/database.h"
+#include "pipeline/metrics/metrics.h"
+#include "pipeline/decode/reconstruct.h"
+#include "pipeline/io/synthetic.h"
 
 using namespace btfvq;
 

@@ -7,11 +7,11 @@
 #include <thread>
 #include <vector>
 
-#include "pipeline/colour.h"
-#include "pipeline/config.h"
-#include "pipeline/error.h"
-#include "pipeline/opencl_runtime.h"
-#include "pipeline/resample.h"
+#include <btfvq/colour.h>
+#include "pipeline/util/config.h"
+#include <btfvq/error.h>
+#include "pipeline/runtime/opencl_runtime.h"
+#include "pipeline/encode/resample.h"
 
 using namespace btfvq;
 

@@ -9,9 +9,9 @@
 #include <string>
 #include <vector>
 
-#include "pipeline/directions.h"
-#include "pipeline/error.h"
-#include "pipeline/sample_io.h"
+#include <btfvq/directions.h>
+#include <btfvq/error.h>
+#include "pipeline/io/sample_io.h"
 #include "support/test_paths.h"
 
 using namespace btfvq;

@@ -8,15 +8,15 @@
 #include <random>
 #include <thread>
 
-#include "pipeline/btfbase.h"
-#include "pipeline/compress.h"
-#include "pipeline/database.h"
-#include "pipeline/decoder.h"
-#include "pipeline/error.h"
+#include "pipeline/io/btfbase.h"
+#include "pipeline/encode/compress.h"
+#include "pipeline/format/database.h"
+#include "pipeline/decode/decoder.h"
+#include <btfvq/error.h>
 #include "pipeline/parametrization.h"
-#include "pipeline/renderer_api.h"
-#include "pipeline/sampling.h"
-#include "pipeline/synthetic.h"
+#include <btfvq/renderer_api.h>
+#include "pipeline/decode/sampling.h"
+#include "pipeline/io/synthetic.h"
 #include "support/test_paths.h"
 
 using namespace btfvq;

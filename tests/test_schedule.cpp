@@ -5,11 +5,11 @@
 #include <set>
 #include <vector>
 
-#include "pipeline/config.h"
-#include "pipeline/encoder.h"
-#include "pipeline/error.h"
-#include "pipeline/opencl_runtime.h"
-#include "pipeline/schedule.h"
+#include "pipeline/util/config.h"
+#include "pipeline/encode/encoder.h"
+#include <btfvq/error.h>
+#include "pipeline/runtime/opencl_runtime.h"
+#include "pipeline/encode/schedule.h"
 #include "support/synthetic_texels.h"
 
 using namespace btfvq;

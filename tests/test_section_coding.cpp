@@ -6,14 +6,14 @@
 #include <cstring>
 #include <random>
 
-#include "pipeline/compress.h"
-#include "pipeline/database.h"
-#include "pipeline/decoder.h"
-#include "pipeline/error.h"
-#include "pipeline/packing.h"
-#include "pipeline/range_coder.h"
-#include "pipeline/section_coding.h"
-#include "pipeline/synthetic.h"
+#include "pipeline/encode/compress.h"
+#include "pipeline/format/database.h"
+#include "pipeline/decode/decoder.h"
+#include <btfvq/error.h>
+#include "pipeline/format/packing.h"
+#include "pipeline/format/range_coder.h"
+#include "pipeline/format/section_coding.h"
+#include "pipeline/io/synthetic.h"
 
 using namespace btfvq;
 

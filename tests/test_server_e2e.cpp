@@ -17,9 +17,9 @@
 #include <sstream>
 #include <thread>
 
-#include "pipeline/database.h"
-#include "pipeline/reconstruct.h"
-#include "pipeline/sha256.h"
+#include "pipeline/format/database.h"
+#include "pipeline/decode/reconstruct.h"
+#include "pipeline/util/sha256.h"
 #include "support/server_process.h"
 #include "support/test_paths.h"
 

@@ -5,9 +5,9 @@
 #include <random>
 #include <vector>
 
-#include "pipeline/config.h"
-#include "pipeline/error.h"
-#include "pipeline/similarity.h"
+#include "pipeline/util/config.h"
+#include <btfvq/error.h>
+#include "pipeline/encode/similarity.h"
 
 using namespace btfvq;
 

@@ -11,10 +11,10 @@
 #include <string>
 #include <vector>
 
-#include "pipeline/error.h"
-#include "pipeline/opencl_runtime.h"
-#include "pipeline/sample_io.h"
-#include "pipeline/synthetic.h"
+#include <btfvq/error.h>
+#include "pipeline/runtime/opencl_runtime.h"
+#include "pipeline/io/sample_io.h"
+#include "pipeline/io/synthetic.h"
 #include "support/test_paths.h"
 
 using namespace btfvq;

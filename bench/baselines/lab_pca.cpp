@@ -5,7 +5,7 @@
 #include <cmath>
 
 #include "bench/baselines/pca.h"
-#include "pipeline/error.h"
+#include <btfvq/error.h>
 
 namespace btfvq::baselines {
 

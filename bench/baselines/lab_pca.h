@@ -11,7 +11,7 @@
 
 #include "bench/baselines/baseline.h"
 #include "pipeline/btf.h"
-#include "pipeline/metrics.h"
+#include "pipeline/metrics/metrics.h"
 
 namespace btfvq::baselines {
 

@@ -5,8 +5,8 @@
 #include <cmath>
 
 #include "bench/baselines/pca.h"
-#include "pipeline/error.h"
-#include "pipeline/resample.h"
+#include <btfvq/error.h>
+#include "pipeline/encode/resample.h"
 
 namespace btfvq::baselines {
 

@@ -1,6 +1,6 @@
 #pragma once
 // One-level VQ (paper 000 Sec. 4.2 and 7: "at most 1:80"): the same parametrization as btfvq (texels
-// resampled onto the (phi_v, theta_v, alpha, beta) grid in the coding space, pipeline/resample.h)
+// resampled onto the (phi_v, theta_v, alpha, beta) grid in the coding space, pipeline/encode/resample.h)
 // with a single code-book of whole resampled texels, trained by k-means (Lloyd, deterministic
 // initialization from evenly spaced training texels), and decoded back at the measured directions
 // with the interpolation of btfvq's decoder. Stored: N code-vectors of 3 x grid samples values, 8-bit
@@ -9,8 +9,8 @@
 
 #include "bench/baselines/baseline.h"
 #include "pipeline/btf.h"
-#include "pipeline/colour.h"
-#include "pipeline/config.h"
+#include <btfvq/colour.h>
+#include "pipeline/util/config.h"
 #include "pipeline/parametrization.h"
 
 namespace btfvq::baselines {

@@ -7,10 +7,10 @@
 #include <vector>
 
 #include "pipeline/btf.h"
-#include "pipeline/colour.h"
-#include "pipeline/directions.h"
+#include <btfvq/colour.h>
+#include <btfvq/directions.h>
 #include "pipeline/parametrization.h"
-#include "pipeline/schedule.h"
+#include "pipeline/encode/schedule.h"
 
 namespace btfvq::test {
 

@@ -1,0 +1,159 @@
+#include "pipeline/encode/compress.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cstring>
+
+#include <btfvq/error.h>
+#include "pipeline/runtime/opencl_runtime.h"
+#include "pipeline/encode/resample.h"
+
+namespace btfvq {
+
+namespace {
+
+// Every setting the pipeline reads, in one place, so that validation and compression agree.
+struct PipelineSettings {
+  std::string device;
+  AngularGrid grid;
+  ResampleSettings resample;
+  SimilaritySettings similarity;
+  Thresholds thresholds;
+  ScheduleSettings schedule;
+};
+
+PipelineSettings read_settings(const ParameterDictionary& config) {
+  PipelineSettings s;
+  s.device = config.string("device");
+  s.grid = {config.integer("grid.n_beta", 3, 1024), config.integer("grid.n_alpha", 2, 1024),
+            config.integer("grid.n_theta_v", 2, 1024), config.integer("grid.n_phi_v", 1, 1024)};
+  s.grid.validate();
+  s.resample = ResampleSettings::from(config);
+  s.similarity = SimilaritySettings::from(config);
+  s.thresholds = Thresholds::from(config, s.similarity.metric);
+  s.schedule = ScheduleSettings::from(config);
+  config.check_unused();
+  return s;
+}
+
+nlohmann::json sizes_json(const CodebookSizes& z) {
+  return {{"P1", z.p1}, {"C", z.c}, {"I1", z.i1}, {"I2", z.i2}, {"P2", z.p2}, {"M", z.m}, {"P3", z.p3}, {"P4", z.p4}};
+}
+
+bool has_content(const Database& db) {
+  return !db.materials.empty() || db.codebooks.p1.rows() > 0 || db.codebooks.p4_index.rows() > 0;
+}
+
+// Rough share of the total work per stage, for one progress fraction (phase 1 grows code-books
+// texel by texel and costs far more per texel than the frozen search of phase 3).
+constexpr double kStageStart[4] = {0.0, 0.02, 0.35, 0.55};
+constexpr double kStageEnd[4] = {0.02, 0.35, 0.55, 1.0};
+
+}  // namespace
+
+void validate_pipeline_config(const ParameterDictionary& config) { read_settings(config); }
+
+CompressReport compress_material(Database& db, const MeasuredSample& sample, const std::string& name,
+                                 const CompressOptions& options) {
+  const PipelineSettings s = read_settings(options.config);
+  if (name.empty() || name.size() > 200 || name.find_first_of("/\\\n\r\t") != std::string::npos)
+    throw InputError("material name '" + name + "' must be 1-200 characters without slashes or control characters");
+  if (db.find(name)) throw InputError("the database already has a material named '" + name + "'");
+  if (sample.texel_count() == 0 || sample.pair_count() == 0) throw InputError("the sample is empty");
+  if (has_content(db) && !(db.codebooks.grid == s.grid))
+    throw InputError("the database's angular grid differs from the configured grid");
+  if (!has_content(db)) db.codebooks = Codebooks(s.grid);
+  ComputeDevice::configure(s.device);
+
+  using clock = std::chrono::steady_clock;
+  auto seconds_since = [](clock::time_point t) { return std::chrono::duration<double>(clock::now() - t).count(); };
+  auto report = [&](const std::string& stage, int phase, size_t done, size_t total, double fraction) {
+    if (options.progress)
+      options.progress({stage, phase, done, total, std::clamp(fraction, 0.0, 1.0), CodebookSizes::of(db.codebooks)});
+  };
+
+  const auto t_resample = clock::now();
+  report("resample", 0, 0, sample.texel_count(), 0.0);
+  const ResampleOperator op(sample, s.grid, s.resample);
+  const double operator_seconds = seconds_since(t_resample);
+
+  // The schedule asks for texels in Halton order: gather them into a small contiguous sample and
+  // resample that in one call, so a scattered tile costs one launch.
+  const size_t pairs = sample.pair_count();
+  std::vector<std::vector<Direction>> lights;
+  for (size_t v = 0; v < sample.view_count(); ++v) lights.push_back(sample.lights(v));
+  double resample_seconds = 0;
+  const TexelSource source = [&](const uint32_t* ids, size_t n, float* out) {
+    const auto t = clock::now();
+    MeasuredSample tile(int(n), 1, sample.views(), lights, sample.dynamic());
+    for (size_t i = 0; i < n; ++i) {
+      const size_t from = size_t(ids[i]) * pairs * 3, to = i * pairs * 3;
+      if (sample.is_hdr())
+        std::memcpy(tile.hdr_data().data() + to, sample.hdr_data().data() + from, pairs * 3 * sizeof(float));
+      else
+        std::memcpy(tile.ldr_data().data() + to, sample.ldr_data().data() + from, pairs * 3);
+    }
+    op.apply(tile, 0, n, out);
+    resample_seconds += seconds_since(t);
+  };
+
+  const auto t_schedule = clock::now();
+  const ScheduleResult result = run_schedule(
+      db.codebooks, sample.dynamic(), sample.width(), sample.height(), source, s.thresholds, s.similarity, s.schedule,
+      [&](const ScheduleProgress& p) {
+        const double f = p.total ? double(p.done) / double(p.total) : 1.0;
+        report("phase" + std::to_string(p.phase), p.phase, p.done, p.total,
+               kStageStart[p.phase] + f * (kStageEnd[p.phase] - kStageStart[p.phase]));
+      },
+      options.cancelled);
+
+  Material m;
+  m.name = name;
+  m.width = sample.width();
+  m.height = sample.height();
+  m.dynamic = sample.dynamic();
+  m.raw_bytes = sample.raw_bytes();
+  m.p6_index = result.p6_index;
+  m.p6_scale = result.p6_scale;
+  db.materials.push_back(std::move(m));
+
+  const ScheduleReport& r = result.report;
+  nlohmann::json phases = nlohmann::json::array();
+  for (int p = 0; p < 3; ++p)
+    phases.push_back({{"phase", p + 1}, {"texels", r.texels[p]}, {"seconds", r.seconds[p]},
+                      {"codebook_sizes", sizes_json(r.sizes[p])}});
+  double mean_dissimilarity = 0, worst = 0;
+  for (float d : result.dissimilarity) {
+    mean_dissimilarity += d;
+    worst = std::max(worst, double(d));
+  }
+  mean_dissimilarity /= double(std::max<size_t>(result.dissimilarity.size(), 1));
+  CompressReport out;
+  out.material = name;
+  out.json = {{"material", name},
+              {"width", sample.width()},
+              {"height", sample.height()},
+              {"dynamic", sample.is_hdr() ? "HDR" : "LDR"},
+              {"raw_bytes", sample.raw_bytes()},
+              {"device", ComputeDevice::get().description()},
+              {"phases", phases},
+              {"seconds", {{"resample_operator", operator_seconds},
+                           {"resample", resample_seconds},
+                           {"schedule_total", seconds_since(t_schedule)}}},
+              {"dissimilarity", {{"mean", mean_dissimilarity}, {"max", worst}}},
+              {"search", {{"path", r.search == SearchPath::Pruned          ? "pruned"
+                                   : r.search == SearchPath::BatchedOpenCL ? "batched-opencl"
+                                                                           : "batched-reference"},
+                          {"scored", r.search_stats.scored},
+                          {"settled", r.search_stats.settled},
+                          {"batch_seconds", r.search_stats.batch_seconds},
+                          {"settle_seconds", r.search_stats.settle_seconds}}},
+              {"encoder", {{"comparisons", r.encoder.comparisons},
+                           {"pruned", r.encoder.pruned},
+                           {"fallbacks", r.encoder.fallbacks}}},
+              {"codebook_sizes", sizes_json(CodebookSizes::of(db.codebooks))}};
+  report("done", 0, sample.texel_count(), sample.texel_count(), 1.0);
+  return out;
+}
+
+}  // namespace btfvq

@@ -1,0 +1,1256 @@
+#include "pipeline/encode/encoder.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include <btfvq/error.h>
+
+namespace btfvq {
+
+namespace {
+
+constexpr double kNoBound = -1e300;
+
+// A composition that misses its parent's threshold is first re-encoded with every threshold below
+// it tightened by this factor, and only then exactly: an exact M slice costs 11 new P1 rows and 121
+// new C values, a tightened one mostly reuses entries.
+constexpr double kRetryFactor = 0.5;
+
+// Scales the encoder's thresholds for the lifetime of the scope (children of a retried entry).
+class TightenedScope {
+ public:
+  TightenedScope(Thresholds& t, double f) : t_(t), saved_(t) {
+    if (f != 1.0) t_ = t_.relaxed(f);
+  }
+  ~TightenedScope() { t_ = saved_; }
+  TightenedScope(const TightenedScope&) = delete;
+  TightenedScope& operator=(const TightenedScope&) = delete;
+
+ private:
+  Thresholds& t_;
+  Thresholds saved_;
+};
+
+Thresholds read_thresholds(const ParameterDictionary& d, const std::string& prefix, double hi) {
+  Thresholds t;
+  t.p4 = d.number(prefix + ".p4", 0.0, hi);
+  t.p3 = d.number(prefix + ".p3", 0.0, hi);
+  t.m = d.number(prefix + ".m", 0.0, hi);
+  t.p2 = d.number(prefix + ".p2", 0.0, hi);
+  t.p1 = d.number(prefix + ".p1", 0.0, hi);
+  t.i2 = d.number(prefix + ".i2", 0.0, hi);
+  t.i1 = d.number(prefix + ".i1", 0.0, hi);
+  t.c = d.number(prefix + ".c", 0.0, 1e6);
+  return t;
+}
+
+// The per-sample affine map of stored values in units `unit` to absolute coding-space values.
+Affine unit_affine(Dynamic dyn, int channel, float unit) {
+  if (!channel_scales(dyn, channel)) return {};
+  const float o = channel_offset(dyn, channel);
+  return {o * (1.0f - unit), unit};
+}
+
+float dot(const float* a, const float* b, int n) {
+  float s0 = 0, s1 = 0, s2 = 0, s3 = 0;
+  int i = 0;
+  for (; i + 4 <= n; i += 4) {
+    s0 += a[i] * b[i];
+    s1 += a[i + 1] * b[i + 1];
+    s2 += a[i + 2] * b[i + 2];
+    s3 += a[i + 3] * b[i + 3];
+  }
+  for (; i < n; ++i) s0 += a[i] * b[i];
+  return (s0 + s1) + (s2 + s3);
+}
+
+}  // namespace
+
+Thresholds Thresholds::from(const ParameterDictionary& d, Metric metric) {
+  const Thresholds ssim = read_thresholds(d, "thresholds.ssim", 2.0);
+  const Thresholds mse = read_thresholds(d, "thresholds.mse", 1e6);
+  return metric == Metric::SSIM ? ssim : mse;
+}
+
+Thresholds Thresholds::from(const ParameterDictionary& d) {
+  return from(d, SimilaritySettings::from(d).metric);
+}
+
+Thresholds Thresholds::relaxed(double f) const {
+  if (!(f >= 0) || !std::isfinite(f)) throw ConfigError("threshold relax factor must be a finite number >= 0");
+  return {p4 * f, p3 * f, m * f, p2 * f, p1 * f, i2 * f, i1 * f, c * f};
+}
+
+float normalized_brightness(Dynamic dyn) { return dyn == Dynamic::LDR ? 100.0f : 1.0f; }
+
+// ---------------------------------------------------------------------------------------------
+// Per-call scratch and queries.
+
+struct Encoder::Ctx {
+  SsimConstants k;
+  ScoreAccumulator acc;
+  std::vector<float> scratch;
+  std::vector<PlaneRef> planes;
+  std::vector<float> proxy;
+  std::vector<uint32_t> order;
+  std::vector<uint8_t> tried;
+  EncoderStats counts;
+};
+
+// The input slice: `planes` planes with channels [first, first + channels), values in units `unit`
+// (absolute = offset + unit (v - offset) for the channels an RGB scale acts on).
+struct Encoder::Query {
+  int planes = 0, first = 0, channels = 3;
+  float unit = 1.0f;
+  std::vector<ChannelView> views;  // planes x channels
+  std::vector<float> stats;        // owned window statistics, when not borrowed from a parent
+  size_t values = 0;
+  // SSIM accumulation order of the planes: most contrast first, where a worse candidate shows its
+  // low values soonest and is abandoned early (the percentile does not depend on the order).
+  std::vector<int> order;
+  const ChannelView& at(int p, int c) const { return views[size_t(p * channels + (c - first))]; }
+  void order_planes(int n) {
+    std::vector<double> contrast(size_t(planes), 0.0);
+    for (int p = 0; p < planes; ++p)
+      for (int c = 0; c < channels; ++c) {
+        const ChannelView& v = views[size_t(p * channels + c)];
+        contrast[size_t(p)] += v.sumsq - v.sum * v.sum / n;
+      }
+    order.resize(size_t(planes));
+    for (int p = 0; p < planes; ++p) order[size_t(p)] = p;
+    std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return contrast[size_t(a)] > contrast[size_t(b)]; });
+  }
+};
+
+namespace {
+
+// A view of one plane channel whose window statistics are already in mean and var.
+ChannelView view_of(const WindowGeometry& g, const float* v, const float* mean, const float* var) {
+  ChannelView cv;
+  cv.v = v;
+  cv.mean = mean;
+  cv.var = var;
+  double s = 0, ss = 0;
+  for (int i = 0; i < g.size(); ++i) {
+    s += v[i];
+    ss += double(v[i]) * v[i];
+  }
+  cv.sum = s;
+  cv.sumsq = ss;
+  return cv;
+}
+
+ChannelView make_view(const WindowGeometry& g, const float* v, float* mean, float* var) {
+  g.stats(v, mean, var);
+  return view_of(g, v, mean, var);
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+// Caches of the code-books (append-only, like the code-books).
+
+Encoder::Encoder(Codebooks& books, Dynamic dyn, const Thresholds& thresholds, const SimilaritySettings& settings)
+    : books_(books), dyn_(dyn), thresholds_(thresholds), settings_(settings), grid_(books.grid) {
+  grid_.validate();
+  if (books.p1.cols() != size_t(grid_.n_beta) || books.p2_index.cols() != size_t(grid_.n_alpha) ||
+      books.p3_index.cols() != size_t(grid_.n_theta_v) || books.p4_index.cols() != size_t(grid_.n_phi_v))
+    throw InputError("encoder: the code-book tables do not match the code-books' grid");
+  g2_ = WindowGeometry(grid_.n_alpha, grid_.n_beta, settings.window_radius);
+  g1_ = WindowGeometry(1, grid_.n_beta, settings.window_radius);
+  p1_store_ = SliceStore(1, &g1_);
+  i1_store_ = SliceStore(2, &g1_);
+  p1_index_ = ProxyIndex(grid_.n_beta, 0.02f);
+  i1_index_ = ProxyIndex(2 * grid_.n_beta, 2.0f);
+  p2_store_ = SliceStore(1, &g2_);
+  i2_store_ = SliceStore(2, &g2_);
+  Database{books_, {}}.validate();
+  sync();
+}
+
+void Encoder::sync() {
+  while (c_indexed_ < books_.c.rows()) index_c(uint32_t(c_indexed_));
+  while (p1_store_.size() < books_.p1.rows()) cache_p1(p1_store_.size());
+  while (i1_store_.size() < books_.i1.rows()) cache_i1(i1_store_.size());
+  while (p2_store_.size() < books_.p2_index.rows()) cache_p2(p2_store_.size());
+  while (i2_store_.size() < books_.i2.rows()) cache_i2(i2_store_.size());
+  while (m_bright_.size() < books_.m.rows()) cache_m(uint32_t(m_bright_.size()));
+  while (p3_bright_.size() < books_.p3_index.rows()) cache_p3(uint32_t(p3_bright_.size()));
+  while (p4_bright_.size() < books_.p4_index.rows()) cache_p4(uint32_t(p4_bright_.size()));
+}
+
+namespace {
+// Leaders whose lists a 1D search scans (ProxyIndex::nearest).
+constexpr int kProbes = 8;
+
+// The row as a unit vector: P1 rows are matched after their best scale, so only the shape counts.
+void unit_shape(const float* row, int n, float* out) {
+  double s = 0;
+  for (int i = 0; i < n; ++i) s += double(row[i]) * row[i];
+  const float inv = s > 0 ? float(1.0 / std::sqrt(s)) : 0.0f;
+  for (int i = 0; i < n; ++i) out[i] = row[i] * inv;
+}
+}  // namespace
+
+void Encoder::cache_p1(uint32_t e) {
+  p1_store_.append(books_.p1.row(e));
+  float shape[256];
+  if (grid_.n_beta > 256) throw InputError("encoder: n_beta above 256 is not supported");
+  unit_shape(books_.p1.row(e), grid_.n_beta, shape);
+  p1_index_.insert(shape);
+}
+
+namespace {
+constexpr float kCCell = 4.0f;  // grid cell of the C index, in stored chroma units
+int64_t c_cell(double v) { return int64_t(std::floor(v / kCCell)); }
+uint64_t c_key(int64_t i, int64_t j) { return (uint64_t(uint32_t(int32_t(i))) << 32) | uint32_t(int32_t(j)); }
+}  // namespace
+
+void Encoder::index_c(uint32_t e) {
+  c_grid_[c_key(c_cell(books_.c.at(e, 0)), c_cell(books_.c.at(e, 1)))].push_back(e);
+  c_indexed_ = size_t(e) + 1;
+}
+
+void Encoder::cache_i1(uint32_t e) {
+  const int nb = grid_.n_beta;
+  std::vector<float> v(static_cast<size_t>(2 * nb));
+  for (int b = 0; b < nb; ++b) {
+    const uint32_t c = books_.i1.at(e, size_t(b));
+    v[size_t(b)] = books_.c.at(c, 0);
+    v[size_t(nb + b)] = books_.c.at(c, 1);
+  }
+  i1_store_.append(v.data());
+  i1_index_.insert(v.data());
+}
+
+void Encoder::cache_p2(uint32_t e) {
+  const int na = grid_.n_alpha, nb = grid_.n_beta;
+  std::vector<float> v(static_cast<size_t>(na * nb));
+  for (int a = 0; a < na; ++a) {
+    const float s = books_.p2_scale.at(e, size_t(a));
+    const float* row = books_.p1.row(books_.p2_index.at(e, size_t(a)));
+    for (int b = 0; b < nb; ++b) v[size_t(a * nb + b)] = s * row[b];
+  }
+  p2_store_.append(v.data());
+  const float o = channel_offset(dyn_, 0);
+  for (int a = 0; a < na; ++a) {
+    double s = 0;
+    for (int b = 0; b < nb; ++b) s += v[size_t(a * nb + b)];
+    p2_sig_.push_back(float(s / nb) - o);
+  }
+}
+
+void Encoder::cache_i2(uint32_t e) {
+  const int na = grid_.n_alpha, nb = grid_.n_beta, n = na * nb;
+  std::vector<float> v(static_cast<size_t>(2 * n));
+  for (int a = 0; a < na; ++a) {
+    const uint32_t i1 = books_.i2.at(e, size_t(a));
+    for (int b = 0; b < nb; ++b) {
+      const uint32_t c = books_.i1.at(i1, size_t(b));
+      v[size_t(a * nb + b)] = books_.c.at(c, 0);
+      v[size_t(n + a * nb + b)] = books_.c.at(c, 1);
+    }
+  }
+  i2_store_.append(v.data());
+  for (int ch = 0; ch < 2; ++ch)
+    for (int a = 0; a < na; ++a) {
+      double s = 0;
+      for (int b = 0; b < nb; ++b) s += v[size_t(ch * n + a * nb + b)];
+      i2_sig_.push_back(float(s / nb) - channel_offset(dyn_, 1 + ch));
+    }
+}
+
+void Encoder::cache_m(uint32_t e) {
+  const uint32_t p2 = books_.m.at(e, 0), i2 = books_.m.at(e, 1);
+  const int na = grid_.n_alpha;
+  const ChannelView y = p2_store_.view(p2, 0);
+  const double n = double(g2_.size());
+  m_bright_.push_back(float(y.sum / n) - channel_offset(dyn_, 0));
+  for (int a = 0; a < na; ++a) m_sig_.push_back(p2_sig_[size_t(p2) * size_t(na) + size_t(a)]);
+  for (int a = 0; a < 2 * na; ++a) m_sig_.push_back(i2_sig_[size_t(i2) * size_t(2 * na) + size_t(a)]);
+  m_lookup_.emplace((uint64_t(p2) << 32) | i2, e);
+}
+
+// Proxy signature of composite entries: per plane, the offset-removed mean of each channel.
+void Encoder::cache_p3(uint32_t e) {
+  const int nt = grid_.n_theta_v, na = grid_.n_alpha;
+  double bright = 0;
+  for (int t = 0; t < nt; ++t) {
+    const uint32_t m = books_.p3_index.at(e, size_t(t));
+    const float s = books_.p3_scale.at(e, size_t(t));
+    bright += s * m_bright_[m];
+    for (int c = 0; c < 3; ++c) {
+      double mean = 0;
+      for (int a = 0; a < na; ++a) mean += m_sig_[size_t(m) * size_t(3 * na) + size_t(c * na + a)];
+      mean /= na;
+      p3_sig_.push_back(float(channel_scales(dyn_, c) ? s * mean : mean));
+    }
+  }
+  p3_bright_.push_back(float(bright / nt));
+}
+
+void Encoder::cache_p4(uint32_t e) {
+  const int np = grid_.n_phi_v, nt = grid_.n_theta_v;
+  double bright = 0;
+  for (int p = 0; p < np; ++p) {
+    const uint32_t p3 = books_.p4_index.at(e, size_t(p));
+    const float s = books_.p4_scale.at(e, size_t(p));
+    bright += s * p3_bright_[p3];
+    for (int i = 0; i < 3 * nt; ++i) {
+      const float v = p3_sig_[size_t(p3) * size_t(3 * nt) + size_t(i)];
+      p4_sig_.push_back(channel_scales(dyn_, i % 3) ? s * v : v);
+    }
+  }
+  p4_bright_.push_back(float(bright / np));
+  if (settings_.metric == Metric::MSE) laesa_insert(e);
+}
+
+// <a - o, b - o> over the channels an RGB scale acts on, with both planes' factors.
+double Encoder::plane_dot(const PlaneRef& a, const PlaneRef& b) const {
+  const int n = g2_.size();
+  double sum = 0;
+  for (int c = 0; c < 3; ++c) {
+    if (!channel_scales(dyn_, c)) continue;
+    const ChannelView x = c == 0 ? p2_store_.view(a.p2, 0) : i2_store_.view(a.i2, c - 1);
+    const ChannelView y = c == 0 ? p2_store_.view(b.p2, 0) : i2_store_.view(b.i2, c - 1);
+    const double o = channel_offset(dyn_, c);
+    double xy = 0;
+    for (int i = 0; i < n; ++i) xy += double(x.v[i]) * y.v[i];
+    sum += xy - o * (x.sum + y.sum) + n * o * o;
+  }
+  return double(a.factor) * double(b.factor) * sum;
+}
+
+namespace {
+double angle_of(double dot, double na, double nb) {
+  if (!(na > 0) || !(nb > 0)) return std::numeric_limits<double>::quiet_NaN();
+  return std::acos(std::clamp(dot / (na * nb), -1.0, 1.0));
+}
+}  // namespace
+
+void Encoder::laesa_insert(uint32_t e) {
+  std::vector<PlaneRef> pe, pp;
+  planes_of_p4(e, pe);
+  double norm2 = 0;
+  for (const auto& p : pe) norm2 += plane_dot(p, p);
+  p4_norm_.push_back(std::sqrt(std::max(0.0, norm2)));
+  pivot_angle_.resize(size_t(e + 1) * kPivots, std::numeric_limits<double>::quiet_NaN());
+  double closest = 10;
+  for (size_t j = 0; j < pivots_.size(); ++j) {
+    planes_of_p4(pivots_[j], pp);
+    double d = 0;
+    for (size_t i = 0; i < pe.size(); ++i) d += plane_dot(pe[i], pp[i]);
+    const double a = angle_of(d, p4_norm_[e], p4_norm_[pivots_[j]]);
+    pivot_angle_[size_t(e) * kPivots + j] = a;
+    if (std::isfinite(a)) closest = std::min(closest, a);
+  }
+  // Dynamic LAESA: a new entry far enough from the pivots becomes one while there is room.
+  if (int(pivots_.size()) < kPivots && p4_norm_[e] > 0 && closest > 0.05) {
+    const size_t j = pivots_.size();
+    pivots_.push_back(e);
+    for (uint32_t other = 0; other <= e; ++other) {
+      planes_of_p4(other, pp);
+      double d = 0;
+      for (size_t i = 0; i < pe.size(); ++i) d += plane_dot(pp[i], pe[i]);
+      pivot_angle_[size_t(other) * kPivots + j] = other == e ? 0.0 : angle_of(d, p4_norm_[other], p4_norm_[e]);
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Searches.
+
+double Encoder::bound_for(double threshold, size_t values) const {
+  return dissimilarity_to_score(settings_.metric, threshold, values);
+}
+
+void Encoder::planes_of_p3(uint32_t e, std::vector<PlaneRef>& out) const {
+  out.clear();
+  for (int t = 0; t < grid_.n_theta_v; ++t) {
+    const uint32_t m = books_.p3_index.at(e, size_t(t));
+    out.push_back({books_.m.at(m, 0), books_.m.at(m, 1), books_.p3_scale.at(e, size_t(t))});
+  }
+}
+
+void Encoder::planes_of_p4(uint32_t e, std::vector<PlaneRef>& out) const {
+  out.clear();
+  for (int p = 0; p < grid_.n_phi_v; ++p) {
+    const uint32_t p3 = books_.p4_index.at(e, size_t(p));
+    const float s4 = books_.p4_scale.at(e, size_t(p));
+    for (int t = 0; t < grid_.n_theta_v; ++t) {
+      const uint32_t m = books_.p3_index.at(p3, size_t(t));
+      out.push_back({books_.m.at(m, 0), books_.m.at(m, 1), s4 * books_.p3_scale.at(p3, size_t(t))});
+    }
+  }
+}
+
+bool Encoder::evaluate_composite(const Query& q, const PlaneRef* planes, int np, double bound, Ctx& ctx, double* score,
+                                 float* scale) const {
+  const int n = g2_.size();
+  // Best RGB scale: least squares on the offset-removed values of the channels it acts on.
+  double num = 0, den = 0;
+  for (int j = 0; j < np; ++j) {
+    const double f = planes[j].factor;
+    for (int c = 0; c < 3; ++c) {
+      if (!channel_scales(dyn_, c)) continue;
+      const ChannelView& x = q.at(j, c);
+      const ChannelView y = c == 0 ? p2_store_.view(planes[j].p2, 0) : i2_store_.view(planes[j].i2, c - 1);
+      const double o = channel_offset(dyn_, c);
+      const double xy = dot(x.v, y.v, n);
+      num += f * (xy - o * (x.sum + y.sum) + n * o * o);
+      den += f * f * (y.sumsq - 2 * o * y.sum + n * o * o);
+    }
+  }
+  const double s = den > 1e-20 ? std::max(0.0, num / den) : 1.0;
+  ctx.acc.reset(settings_.metric, q.values, settings_.outlier_fraction, bound);
+  const bool reorder = settings_.metric == Metric::SSIM && int(q.order.size()) == np;
+  for (int jj = 0; jj < np; ++jj)
+    for (int c = 0; c < 3; ++c) {
+      const int j = reorder ? q.order[size_t(jj)] : jj;
+      const ChannelView& x = q.at(j, c);
+      const ChannelView y = c == 0 ? p2_store_.view(planes[j].p2, 0) : i2_store_.view(planes[j].i2, c - 1);
+      const Affine ax = unit_affine(dyn_, c, q.unit);
+      const Affine ay = unit_affine(dyn_, c, float(q.unit * s * planes[j].factor));
+      if (!accumulate_channel(g2_, settings_.metric, x, ax, y, ay, ctx.k.c1[c], ctx.k.c2[c], ctx.acc,
+                              ctx.scratch.data()))
+        return false;
+    }
+  *score = ctx.acc.score();
+  *scale = float(s);
+  return true;
+}
+
+namespace {
+
+// Candidate order: the `k` best by proxy first, then the others in index order; with a limit, only
+// the `limit` best by proxy (an approximate search, see docs/similarity.md).
+template <class Proxy>
+void order_candidates(uint32_t n, int k, int limit, Proxy proxy, std::vector<float>& prox,
+                      std::vector<uint32_t>& order, std::vector<uint8_t>& tried) {
+  order.clear();
+  if (limit > 0) k = std::max(k, limit);
+  if (k <= 0 || n <= uint32_t(k)) {
+    for (uint32_t e = 0; e < n; ++e) order.push_back(e);
+    return;
+  }
+  prox.resize(n);
+  for (uint32_t e = 0; e < n; ++e) prox[e] = proxy(e);
+  std::vector<uint32_t> idx(n);
+  for (uint32_t e = 0; e < n; ++e) idx[e] = e;
+  std::partial_sort(idx.begin(), idx.begin() + k, idx.end(),
+                    [&](uint32_t a, uint32_t b) { return prox[a] < prox[b] || (prox[a] == prox[b] && a < b); });
+  tried.assign(n, 0);
+  for (int i = 0; i < k; ++i) {
+    order.push_back(idx[size_t(i)]);
+    tried[idx[size_t(i)]] = 1;
+  }
+  if (limit > 0) {
+    order.resize(size_t(limit));
+    return;
+  }
+  for (uint32_t e = 0; e < n; ++e)
+    if (!tried[e]) order.push_back(e);
+}
+
+// Least-squares distance of two signatures after the best scale (a cheap ordering heuristic).
+float scaled_distance(const float* q, const float* y, int n) {
+  double qy = 0, yy = 0, qq = 0;
+  for (int i = 0; i < n; ++i) {
+    qy += double(q[i]) * y[i];
+    yy += double(y[i]) * y[i];
+    qq += double(q[i]) * q[i];
+  }
+  const double s = yy > 0 ? std::max(0.0, qy / yy) : 0.0;
+  return float(qq - 2 * s * qy + s * s * yy);
+}
+
+float plain_distance(const float* q, const float* y, int n) {
+  double d = 0;
+  for (int i = 0; i < n; ++i) d += double(q[i] - y[i]) * (q[i] - y[i]);
+  return float(d);
+}
+
+}  // namespace
+
+// Runs a nearest-code-vector search: eval(e, bound, &score, &scale) scores candidate e or returns
+// false once it cannot reach `bound`. Ties go to the lowest index, so pruning never changes the result.
+template <class Eval>
+static void run_search(const std::vector<uint32_t>& order, bool pruning, double threshold_score, Eval eval,
+                       EncoderStats& counts, int64_t& best_index, double& best_score, float& best_scale) {
+  best_index = -1;
+  best_score = kNoBound;
+  for (uint32_t e : order) {
+    double sc;
+    float s = 1;
+    ++counts.comparisons;
+    const double bound = pruning ? std::max(threshold_score, best_score) : kNoBound;
+    if (!eval(e, bound, &sc, &s)) {
+      ++counts.pruned;
+      continue;
+    }
+    if (sc > best_score || (sc == best_score && int64_t(e) < best_index)) {
+      best_index = e;
+      best_score = sc;
+      best_scale = s;
+    }
+  }
+  if (best_index >= 0 && best_score < threshold_score) best_index = -1;
+}
+
+void Encoder::order_composite(const Query& q, int level, Ctx& ctx) const {
+  ctx.order.clear();
+  const uint32_t n = uint32_t(level == 4 ? books_.p4_index.rows() : level == 3 ? books_.p3_index.rows() : books_.m.rows());
+  if (n == 0) return;
+  // Query signature: as the candidates' (level 4/3: per plane channel means; M: per channel row means).
+  std::vector<float> qsig;
+  const int na = grid_.n_alpha, nb = grid_.n_beta;
+  if (level == 2) {
+    for (int c = 0; c < 3; ++c)
+      for (int a = 0; a < na; ++a)
+        qsig.push_back(float(q.at(0, c).row_sum(a, nb) / nb) - channel_offset(dyn_, c));
+  } else {
+    for (int p = 0; p < q.planes; ++p)
+      for (int c = 0; c < 3; ++c) qsig.push_back(float(q.at(p, c).sum / g2_.size()) - channel_offset(dyn_, c));
+  }
+  const int ns = int(qsig.size());
+  const std::vector<float>& sig = level == 4 ? p4_sig_ : level == 3 ? p3_sig_ : m_sig_;
+  order_candidates(
+      n, settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
+      [&](uint32_t e) { return scaled_distance(qsig.data(), sig.data() + size_t(e) * size_t(ns), ns); }, ctx.proxy,
+      ctx.order, ctx.tried);
+}
+
+Encoder::Match Encoder::search_composite(const Query& q, int level, double threshold_score, Ctx& ctx) const {
+  order_composite(q, level, ctx);
+  const std::vector<uint32_t> order = ctx.order;
+  return search_composite_in(q, level, order, threshold_score, ctx);
+}
+
+Encoder::Match Encoder::search_composite_in(const Query& q, int level, const std::vector<uint32_t>& order,
+                                            double threshold_score, Ctx& ctx) const {
+  Match best;
+  if (order.empty()) return best;
+  std::vector<PlaneRef> planes;
+  // LAESA (MSE only): angles of the query to the pivots bound every candidate's residual from below.
+  const bool laesa = level == 4 && settings_.metric == Metric::MSE && settings_.pruning && !pivots_.empty();
+  double qnorm2 = 0;
+  std::vector<double> qangle;
+  if (laesa) {
+    const int n = g2_.size();
+    for (int p = 0; p < q.planes; ++p)
+      for (int c = 0; c < 3; ++c) {
+        if (!channel_scales(dyn_, c)) continue;
+        const ChannelView& x = q.at(p, c);
+        const double o = channel_offset(dyn_, c);
+        qnorm2 += x.sumsq - 2 * o * x.sum + n * o * o;
+      }
+    for (uint32_t pv : pivots_) {
+      planes_of_p4(pv, planes);
+      double d = 0;
+      for (int p = 0; p < q.planes; ++p)
+        for (int c = 0; c < 3; ++c) {
+          if (!channel_scales(dyn_, c)) continue;
+          const ChannelView& x = q.at(p, c);
+          const ChannelView y = c == 0 ? p2_store_.view(planes[size_t(p)].p2, 0) : i2_store_.view(planes[size_t(p)].i2, c - 1);
+          const double o = channel_offset(dyn_, c);
+          double xy = 0;
+          for (int i = 0; i < n; ++i) xy += double(x.v[i]) * y.v[i];
+          d += planes[size_t(p)].factor * (xy - o * (x.sum + y.sum) + n * o * o);
+        }
+      qangle.push_back(angle_of(d, std::sqrt(std::max(0.0, qnorm2)), p4_norm_[pv]));
+    }
+  }
+  const double kHalfPi = 1.5707963267948966;
+  auto eval = [&](uint32_t e, double bound, double* sc, float* s) {
+    if (laesa && bound > kNoBound) {
+      double lb = 0;
+      for (size_t j = 0; j < qangle.size(); ++j) {
+        const double pa = pivot_angle_[size_t(e) * kPivots + j];
+        if (std::isfinite(pa) && std::isfinite(qangle[j])) lb = std::max(lb, std::abs(qangle[j] - pa));
+      }
+      lb = std::min(std::max(0.0, lb - 1e-6), kHalfPi);
+      const double residual = qnorm2 * std::sin(lb) * std::sin(lb) * (1.0 - 1e-5);  // safety margin for rounding
+      if (-residual < bound) {
+        ++ctx.counts.laesa_skipped;
+        return false;
+      }
+    }
+    if (level == 4) planes_of_p4(e, planes);
+    else if (level == 3) planes_of_p3(e, planes);
+    else planes.assign(1, PlaneRef{books_.m.at(e, 0), books_.m.at(e, 1), 1.0f});
+    return evaluate_composite(q, planes.data(), int(planes.size()), bound, ctx, sc, s);
+  };
+  run_search(order, settings_.pruning, threshold_score, eval, ctx.counts, best.index, best.score, best.scale);
+  return best;
+}
+
+Encoder::Match Encoder::search_p2(const Query& q, double threshold_score, Ctx& ctx) const {
+  Match best;
+  const uint32_t n = p2_store_.size();
+  if (n == 0) return best;
+  const int na = grid_.n_alpha, nb = grid_.n_beta;
+  std::vector<float> qsig(static_cast<size_t>(na));
+  for (int a = 0; a < na; ++a) qsig[size_t(a)] = float(q.at(0, 0).row_sum(a, nb) / nb) - channel_offset(dyn_, 0);
+  order_candidates(
+      n, settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
+      [&](uint32_t e) { return plain_distance(qsig.data(), p2_sig_.data() + size_t(e) * size_t(na), na); },
+      ctx.proxy, ctx.order, ctx.tried);
+  const Affine ax = unit_affine(dyn_, 0, q.unit);
+  auto eval = [&](uint32_t e, double bound, double* sc, float* s) {
+    ctx.acc.reset(settings_.metric, q.values, settings_.outlier_fraction, bound);
+    if (!accumulate_channel(g2_, settings_.metric, q.at(0, 0), ax, p2_store_.view(e, 0), ax, ctx.k.c1[0],
+                            ctx.k.c2[0], ctx.acc, ctx.scratch.data()))
+      return false;
+    *sc = ctx.acc.score();
+    *s = 1;
+    return true;
+  };
+  const std::vector<uint32_t> order = ctx.order;
+  run_search(order, settings_.pruning, threshold_score, eval, ctx.counts, best.index, best.score, best.scale);
+  return best;
+}
+
+Encoder::Match Encoder::search_i2(const Query& q, double threshold_score, Ctx& ctx) const {
+  Match best;
+  const uint32_t n = i2_store_.size();
+  if (n == 0) return best;
+  const int na = grid_.n_alpha, nb = grid_.n_beta;
+  std::vector<float> qsig;
+  for (int c = 1; c <= 2; ++c)
+    for (int a = 0; a < na; ++a) qsig.push_back(float(q.at(0, c).row_sum(a, nb) / nb) - channel_offset(dyn_, c));
+  order_candidates(
+      n, settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
+      [&](uint32_t e) { return plain_distance(qsig.data(), i2_sig_.data() + size_t(e) * size_t(2 * na), 2 * na); },
+      ctx.proxy, ctx.order, ctx.tried);
+  auto eval = [&](uint32_t e, double bound, double* sc, float* s) {
+    ctx.acc.reset(settings_.metric, q.values, settings_.outlier_fraction, bound);
+    for (int c = 1; c <= 2; ++c) {
+      const Affine a = unit_affine(dyn_, c, q.unit);
+      if (!accumulate_channel(g2_, settings_.metric, q.at(0, c), a, i2_store_.view(e, c - 1), a, ctx.k.c1[c],
+                              ctx.k.c2[c], ctx.acc, ctx.scratch.data()))
+        return false;
+    }
+    *sc = ctx.acc.score();
+    *s = 1;
+    return true;
+  };
+  const std::vector<uint32_t> order = ctx.order;
+  run_search(order, settings_.pruning, threshold_score, eval, ctx.counts, best.index, best.score, best.scale);
+  return best;
+}
+
+Encoder::Match Encoder::search_p1(const float* row, float unit, double threshold_score, Ctx& ctx) const {
+  Match best;
+  const uint32_t n = p1_store_.size();
+  if (n == 0) return best;
+  const int nb = grid_.n_beta;
+  float mean[64], var[64];
+  std::vector<float> own;
+  float* pm = mean;
+  float* pv = var;
+  if (nb > 64) {
+    own.resize(size_t(2 * nb));
+    pm = own.data();
+    pv = own.data() + nb;
+  }
+  const ChannelView x = make_view(g1_, row, pm, pv);
+  const Affine ax = unit_affine(dyn_, 0, unit);
+  const float o = channel_offset(dyn_, 0);
+  if (indexed_1d()) {
+    float shape[256];
+    unit_shape(row, nb, shape);
+    p1_index_.nearest(shape, settings_.candidate_limit, kProbes, ctx.order);
+  } else {
+    ctx.order.resize(n);
+    for (uint32_t e = 0; e < n; ++e) ctx.order[e] = e;
+  }
+  // P1 rows are densities: the P2 scale multiplies Y itself (offset included), so the best scale
+  // is the raw least-squares one.
+  // With r = 0 (fewer than 50 samples per row) the score is the minimum: stop at the first value
+  // below the bound. Same values as the general path, so the same choices.
+  const bool minimum = settings_.metric == Metric::SSIM && g1_.radius() == 1 &&
+                       size_t(std::floor(settings_.outlier_fraction * double(nb) + 1e-9)) == 0;
+  auto eval = [&](uint32_t e, double bound, double* sc, float* s) {
+    const ChannelView y = p1_store_.view(e, 0);
+    const double sy = y.sumsq > 0 ? std::max(0.0, double(dot(x.v, y.v, nb)) / y.sumsq) : 0.0;
+    const Affine ay{o * (1.0f - unit), float(unit * sy)};
+    if (minimum) {
+      *s = float(sy);
+      return min_ssim_row(g1_, x, ax, y, ay, ctx.k.c1[0], ctx.k.c2[0], bound, sc);
+    }
+    ctx.acc.reset(settings_.metric, size_t(nb), settings_.outlier_fraction, bound);
+    if (!accumulate_channel(g1_, settings_.metric, x, ax, y, ay, ctx.k.c1[0], ctx.k.c2[0], ctx.acc,
+                            ctx.scratch.data()))
+      return false;
+    *sc = ctx.acc.score();
+    *s = float(sy);
+    return true;
+  };
+  const std::vector<uint32_t> order = ctx.order;
+  run_search(order, settings_.pruning, threshold_score, eval, ctx.counts, best.index, best.score, best.scale);
+  return best;
+}
+
+Encoder::Match Encoder::search_i1(const float* row, float unit, double threshold_score, Ctx& ctx) const {
+  Match best;
+  const uint32_t n = i1_store_.size();
+  if (n == 0) return best;
+  const int nb = grid_.n_beta;
+  std::vector<float> st(static_cast<size_t>(4 * nb));
+  const ChannelView xa = make_view(g1_, row, st.data(), st.data() + nb);
+  const ChannelView xb = make_view(g1_, row + nb, st.data() + 2 * nb, st.data() + 3 * nb);
+  const Affine a1 = unit_affine(dyn_, 1, unit), a2 = unit_affine(dyn_, 2, unit);
+  if (indexed_1d()) {
+    i1_index_.nearest(row, settings_.candidate_limit, kProbes, ctx.order);
+  } else {
+    ctx.order.resize(n);
+    for (uint32_t e = 0; e < n; ++e) ctx.order[e] = e;
+  }
+  auto eval = [&](uint32_t e, double bound, double* sc, float* s) {
+    ctx.acc.reset(settings_.metric, size_t(2 * nb), settings_.outlier_fraction, bound);
+    if (!accumulate_channel(g1_, settings_.metric, xa, a1, i1_store_.view(e, 0), a1, ctx.k.c1[1], ctx.k.c2[1],
+                            ctx.acc, ctx.scratch.data()))
+      return false;
+    if (!accumulate_channel(g1_, settings_.metric, xb, a2, i1_store_.view(e, 1), a2, ctx.k.c1[2], ctx.k.c2[2],
+                            ctx.acc, ctx.scratch.data()))
+      return false;
+    *sc = ctx.acc.score();
+    *s = 1;
+    return true;
+  };
+  const std::vector<uint32_t> order = ctx.order;
+  run_search(order, settings_.pruning, threshold_score, eval, ctx.counts, best.index, best.score, best.scale);
+  return best;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Encoding, top-down with bottom-up insertion.
+
+namespace {
+
+// A query over texel planes [first_plane, first_plane + planes) borrowing the parent's statistics.
+template <class Q>
+Q sub_query(const Q& parent, int first_plane, int planes) {
+  Q q;
+  q.planes = planes;
+  q.first = parent.first;
+  q.channels = parent.channels;
+  q.unit = parent.unit;
+  q.views.assign(parent.views.begin() + first_plane * parent.channels,
+                 parent.views.begin() + (first_plane + planes) * parent.channels);
+  q.values = parent.values / size_t(parent.planes) * size_t(planes);
+  return q;
+}
+
+}  // namespace
+
+P6Entry Encoder::encode_growing(const float* texel) {
+  sync();
+  Ctx ctx;
+  const Match m = encode_p4(texel, ctx, false);
+  stats_.texels += 1;
+  stats_.comparisons += ctx.counts.comparisons;
+  stats_.pruned += ctx.counts.pruned;
+  stats_.fallbacks += ctx.counts.fallbacks;
+  stats_.laesa_skipped += ctx.counts.laesa_skipped;
+  P6Entry r;
+  r.index = uint32_t(m.index);
+  r.scale = m.scale;
+  r.dissimilarity = score_to_dissimilarity(settings_.metric, m.score, size_t(3) * grid_.samples());
+  return r;
+}
+
+namespace {
+
+// The texel with luminance clamped at black: 0 for HDR, the studio-swing 16 for LDR. Below black
+// an RGB scale would turn (Y - 16) negative; normalizing such a slice amplifies the overshoot of the
+// interpolation into negative densities in P1 (and ruins the range of the P1 quantizer).
+std::vector<float> clamped_texel(const float* texel, size_t samples, Dynamic dyn) {
+  std::vector<float> t(texel, texel + 3 * samples);
+  const float black = channel_offset(dyn, 0);
+  for (size_t i = 0; i < samples; ++i) t[i] = std::max(black, t[i]);
+  return t;
+}
+
+float luminance_range(const float* texel, size_t samples) {
+  float m = 0;
+  for (size_t i = 0; i < samples; ++i) m = std::max(m, texel[i]);
+  return m > 0 ? m : 1.0f;
+}
+
+}  // namespace
+
+Encoder::Match Encoder::encode_p4(const float* texel_in, Ctx& ctx, bool exact) {
+  const size_t samples = grid_.samples();
+  const std::vector<float> texel = clamped_texel(texel_in, samples, dyn_);
+  const Query q = texel_query(texel, ctx);
+  const int n = g2_.size();
+  const double p4_bound = bound_for(thresholds_.p4, q.values);
+  if (!exact) {
+    const Match found = search_composite(q, 4, p4_bound, ctx);
+    if (found.index >= 0) return found;
+  }
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    const bool ex = exact || attempt == 2;
+    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
+    std::vector<uint32_t> idx(static_cast<size_t>(grid_.n_phi_v));
+    std::vector<float> sc(idx.size());
+    double bright = 0;
+    for (int p = 0; p < grid_.n_phi_v; ++p) {
+      Query sub = sub_query(q, p * grid_.n_theta_v, grid_.n_theta_v);
+      sub.order_planes(n);
+      const Match r = encode_p3(sub, ctx, ex);
+      idx[size_t(p)] = uint32_t(r.index);
+      sc[size_t(p)] = r.scale;
+      bright += r.scale * p3_bright_[size_t(r.index)];
+    }
+    bright /= grid_.n_phi_v;
+    const float norm = bright > 1e-6 ? float(bright) / normalized_brightness(dyn_) : 1.0f;
+    for (auto& s : sc) s /= norm;
+    // Verify before inserting: the composition must itself be within the P4 threshold.
+    std::vector<PlaneRef> planes;
+    for (int p = 0; p < grid_.n_phi_v; ++p)
+      for (int t = 0; t < grid_.n_theta_v; ++t) {
+        const uint32_t m = books_.p3_index.at(idx[size_t(p)], size_t(t));
+        planes.push_back({books_.m.at(m, 0), books_.m.at(m, 1), sc[size_t(p)] * books_.p3_scale.at(idx[size_t(p)], size_t(t))});
+      }
+    double score;
+    float s;
+    evaluate_composite(q, planes.data(), int(planes.size()), kNoBound, ctx, &score, &s);
+    if (!ex && score < p4_bound) {
+      ++ctx.counts.fallbacks;
+      continue;
+    }
+    books_.p4_index.append(idx.data());
+    books_.p4_scale.append(sc.data());
+    cache_p4(uint32_t(books_.p4_index.rows() - 1));
+    return {int64_t(books_.p4_index.rows() - 1), score, s};
+  }
+  throw std::logic_error("unreachable");
+}
+
+Encoder::Match Encoder::encode_p3(const Query& q, Ctx& ctx, bool exact) {
+  const double bound = bound_for(thresholds_.p3, q.values);
+  if (!exact) {
+    const Match found = search_composite(q, 3, bound, ctx);
+    if (found.index >= 0) return found;
+  }
+  const int nt = grid_.n_theta_v;
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    const bool ex = exact || attempt == 2;
+    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
+    std::vector<uint32_t> idx(static_cast<size_t>(nt));
+    std::vector<float> sc(static_cast<size_t>(nt));
+    double bright = 0;
+    for (int t = 0; t < nt; ++t) {
+      const Match r = encode_m(sub_query(q, t, 1), ctx, ex);
+      idx[size_t(t)] = uint32_t(r.index);
+      sc[size_t(t)] = r.scale;
+      bright += r.scale * m_bright_[size_t(r.index)];
+    }
+    bright /= nt;
+    const float norm = bright > 1e-6 ? float(bright) / normalized_brightness(dyn_) : 1.0f;
+    std::vector<PlaneRef> planes;
+    for (int t = 0; t < nt; ++t) {
+      sc[size_t(t)] /= norm;
+      const uint32_t m = idx[size_t(t)];
+      planes.push_back({books_.m.at(m, 0), books_.m.at(m, 1), sc[size_t(t)]});
+    }
+    double score;
+    float s;
+    evaluate_composite(q, planes.data(), nt, kNoBound, ctx, &score, &s);
+    if (!ex && score < bound) {
+      ++ctx.counts.fallbacks;
+      continue;
+    }
+    books_.p3_index.append(idx.data());
+    books_.p3_scale.append(sc.data());
+    cache_p3(uint32_t(books_.p3_index.rows() - 1));
+    return {int64_t(books_.p3_index.rows() - 1), score, s};
+  }
+  throw std::logic_error("unreachable");
+}
+
+Encoder::Match Encoder::encode_m(const Query& q, Ctx& ctx, bool exact) {
+  const double bound = bound_for(thresholds_.m, q.values);
+  if (!exact) {
+    const Match found = search_composite(q, 2, bound, ctx);
+    if (found.index >= 0) return found;
+  }
+  // Normalize the slice to the fixed brightness, so that P2 and I2 entries are shared across
+  // brightness; the parent's scale restores it. Comparisons below stay in absolute units.
+  const int n = g2_.size();
+  const float o0 = channel_offset(dyn_, 0);
+  const double bright = q.at(0, 0).sum / n - o0;
+  // Slices darker than 1% of the target stay as they are: normalizing them would amplify their
+  // chroma noise (LDR chroma scales with RGB) far outside the usual range of C.
+  const float norm = bright >= 0.01 * normalized_brightness(dyn_) ? float(bright) / normalized_brightness(dyn_) : 1.0f;
+  std::vector<float> v(static_cast<size_t>(3 * n)), st(static_cast<size_t>(6 * n));
+  for (int c = 0; c < 3; ++c) {
+    const float* x = q.at(0, c).v;
+    const float o = channel_offset(dyn_, c);
+    float* out = v.data() + size_t(c * n);
+    if (channel_scales(dyn_, c))
+      for (int i = 0; i < n; ++i) out[i] = o + (x[i] - o) / norm;
+    else
+      std::copy(x, x + n, out);
+  }
+  Query lq, cq;
+  lq.planes = cq.planes = 1;
+  lq.first = 0;
+  lq.channels = 1;
+  cq.first = 1;
+  cq.channels = 2;
+  lq.unit = cq.unit = q.unit * norm;
+  lq.values = size_t(n);
+  cq.values = size_t(2 * n);
+  for (int c = 0; c < 3; ++c) {
+    const ChannelView cv = make_view(g2_, v.data() + size_t(c * n), st.data() + size_t(2 * c * n),
+                                     st.data() + size_t((2 * c + 1) * n));
+    (c == 0 ? lq : cq).views.push_back(cv);
+  }
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    const bool ex = exact || attempt == 2;
+    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
+    const uint32_t p2 = encode_p2(lq, ctx, ex);
+    const uint32_t i2 = encode_i2(cq, ctx, ex);
+    const PlaneRef plane{p2, i2, 1.0f};
+    double score;
+    float s;
+    evaluate_composite(q, &plane, 1, kNoBound, ctx, &score, &s);
+    if (!ex && score < bound) {
+      ++ctx.counts.fallbacks;
+      continue;
+    }
+    const uint64_t key = (uint64_t(p2) << 32) | i2;
+    const auto it = m_lookup_.find(key);
+    if (it != m_lookup_.end()) return {int64_t(it->second), score, s};
+    const uint32_t pair[2] = {p2, i2};
+    books_.m.append(pair);
+    cache_m(uint32_t(books_.m.rows() - 1));
+    return {int64_t(books_.m.rows() - 1), score, s};
+  }
+  throw std::logic_error("unreachable");
+}
+
+uint32_t Encoder::encode_p2(const Query& q, Ctx& ctx, bool exact) {
+  const double bound = bound_for(thresholds_.p2, q.values);
+  if (!exact) {
+    const Match found = search_p2(q, bound, ctx);
+    if (found.index >= 0) return uint32_t(found.index);
+  }
+  const int na = grid_.n_alpha, nb = grid_.n_beta, n = na * nb;
+  std::vector<float> recon(static_cast<size_t>(n)), st(static_cast<size_t>(2 * n));
+  std::vector<uint32_t> idx(static_cast<size_t>(na));
+  std::vector<float> sc(static_cast<size_t>(na));
+  const ChannelView& x = q.at(0, 0);
+  const Affine ax = unit_affine(dyn_, 0, q.unit);
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    const bool ex = exact || attempt == 2;
+    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
+    for (int a = 0; a < na; ++a) {
+      const Match r = encode_p1(x.v + a * nb, q.unit, ctx, ex);
+      idx[size_t(a)] = uint32_t(r.index);
+      sc[size_t(a)] = r.scale;
+      const float* row = books_.p1.row(idx[size_t(a)]);
+      for (int b = 0; b < nb; ++b) recon[size_t(a * nb + b)] = r.scale * row[b];
+    }
+    const ChannelView y = make_view(g2_, recon.data(), st.data(), st.data() + n);
+    ctx.acc.reset(settings_.metric, size_t(n), settings_.outlier_fraction, kNoBound);
+    accumulate_channel(g2_, settings_.metric, x, ax, y, ax, ctx.k.c1[0], ctx.k.c2[0], ctx.acc, ctx.scratch.data());
+    if (!ex && ctx.acc.score() < bound) {
+      ++ctx.counts.fallbacks;
+      continue;
+    }
+    books_.p2_index.append(idx.data());
+    books_.p2_scale.append(sc.data());
+    cache_p2(uint32_t(books_.p2_index.rows() - 1));
+    return uint32_t(books_.p2_index.rows() - 1);
+  }
+  throw std::logic_error("unreachable");
+}
+
+uint32_t Encoder::encode_i2(const Query& q, Ctx& ctx, bool exact) {
+  const double bound = bound_for(thresholds_.i2, q.values);
+  if (!exact) {
+    const Match found = search_i2(q, bound, ctx);
+    if (found.index >= 0) return uint32_t(found.index);
+  }
+  const int na = grid_.n_alpha, nb = grid_.n_beta, n = na * nb;
+  std::vector<float> recon(static_cast<size_t>(2 * n)), st(static_cast<size_t>(4 * n)), row(static_cast<size_t>(2 * nb));
+  std::vector<uint32_t> idx(static_cast<size_t>(na));
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    const bool ex = exact || attempt == 2;
+    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
+    for (int a = 0; a < na; ++a) {
+      std::copy(q.at(0, 1).v + a * nb, q.at(0, 1).v + (a + 1) * nb, row.begin());
+      std::copy(q.at(0, 2).v + a * nb, q.at(0, 2).v + (a + 1) * nb, row.begin() + nb);
+      idx[size_t(a)] = encode_i1(row.data(), q.unit, ctx, ex);
+      const float* y = i1_store_.values(idx[size_t(a)]);
+      std::copy(y, y + nb, recon.begin() + a * nb);
+      std::copy(y + nb, y + 2 * nb, recon.begin() + n + a * nb);
+    }
+    ctx.acc.reset(settings_.metric, size_t(2 * n), settings_.outlier_fraction, kNoBound);
+    for (int c = 1; c <= 2; ++c) {
+      const ChannelView y = make_view(g2_, recon.data() + size_t((c - 1) * n), st.data() + size_t(2 * (c - 1) * n),
+                                      st.data() + size_t((2 * (c - 1) + 1) * n));
+      const Affine a = unit_affine(dyn_, c, q.unit);
+      accumulate_channel(g2_, settings_.metric, q.at(0, c), a, y, a, ctx.k.c1[c], ctx.k.c2[c], ctx.acc,
+                         ctx.scratch.data());
+    }
+    if (!ex && ctx.acc.score() < bound) {
+      ++ctx.counts.fallbacks;
+      continue;
+    }
+    books_.i2.append(idx.data());
+    cache_i2(uint32_t(books_.i2.rows() - 1));
+    return uint32_t(books_.i2.rows() - 1);
+  }
+  throw std::logic_error("unreachable");
+}
+
+Encoder::Match Encoder::encode_p1(const float* row, float unit, Ctx& ctx, bool exact) {
+  const int nb = grid_.n_beta;
+  if (!exact) {
+    const Match found = search_p1(row, unit, bound_for(thresholds_.p1, size_t(nb)), ctx);
+    if (found.index >= 0) return found;
+  }
+  double sum = 0;
+  for (int b = 0; b < nb; ++b) sum += row[b];
+  std::vector<float> density(static_cast<size_t>(nb));
+  for (int b = 0; b < nb; ++b) density[size_t(b)] = sum > 0 ? float(row[b] / sum) : 1.0f / float(nb);
+  books_.p1.append(density.data());
+  cache_p1(uint32_t(books_.p1.rows() - 1));
+  return {int64_t(books_.p1.rows() - 1), 1.0, float(std::max(0.0, sum))};
+}
+
+uint32_t Encoder::encode_i1(const float* row, float unit, Ctx& ctx, bool exact) {
+  const int nb = grid_.n_beta;
+  const double bound = bound_for(thresholds_.i1, size_t(2 * nb));
+  if (!exact) {
+    const Match found = search_i1(row, unit, bound, ctx);
+    if (found.index >= 0) return uint32_t(found.index);
+  }
+  std::vector<float> recon(static_cast<size_t>(2 * nb)), st(static_cast<size_t>(8 * nb));
+  std::vector<uint32_t> idx(static_cast<size_t>(nb));
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    const bool ex = exact || attempt == 2;
+    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
+    for (int b = 0; b < nb; ++b) {
+      idx[size_t(b)] = encode_c(row[b], row[nb + b], unit, ex);
+      recon[size_t(b)] = books_.c.at(idx[size_t(b)], 0);
+      recon[size_t(nb + b)] = books_.c.at(idx[size_t(b)], 1);
+    }
+    ctx.acc.reset(settings_.metric, size_t(2 * nb), settings_.outlier_fraction, kNoBound);
+    for (int c = 1; c <= 2; ++c) {
+      float* s = st.data() + size_t(4 * (c - 1) * nb);
+      const ChannelView x = make_view(g1_, row + (c - 1) * nb, s, s + nb);
+      const ChannelView y = make_view(g1_, recon.data() + (c - 1) * nb, s + 2 * nb, s + 3 * nb);
+      const Affine a = unit_affine(dyn_, c, unit);
+      accumulate_channel(g1_, settings_.metric, x, a, y, a, ctx.k.c1[c], ctx.k.c2[c], ctx.acc, ctx.scratch.data());
+    }
+    if (!ex && ctx.acc.score() < bound) {
+      ++ctx.counts.fallbacks;
+      continue;
+    }
+    books_.i1.append(idx.data());
+    cache_i1(uint32_t(books_.i1.rows() - 1));
+    return uint32_t(books_.i1.rows() - 1);
+  }
+  throw std::logic_error("unreachable");
+}
+
+uint32_t Encoder::encode_c(float a, float b, float unit, bool exact) {
+  // Plain Euclidean distance in absolute units (paper 4.4.1: a small constant threshold).
+  const float ga = channel_scales(dyn_, 1) ? unit : 1.0f, gb = channel_scales(dyn_, 2) ? unit : 1.0f;
+  const double limit = exact ? 0.0 : thresholds_.c * thresholds_.c;
+  int64_t best = -1;
+  double best_d = std::numeric_limits<double>::infinity();
+  const float* c = books_.c.data().data();
+  auto consider = [&](size_t e) {
+    const double da = ga * (a - c[2 * e]), db = gb * (b - c[2 * e + 1]);
+    const double d = da * da + db * db;
+    if (d < best_d || (d == best_d && int64_t(e) < best)) {
+      best_d = d;
+      best = int64_t(e);
+    }
+  };
+  // Only an entry within sqrt(limit) (absolute units) can be returned; in stored units that is a
+  // box of half-width r per channel (with a margin for rounding). The grid visits the cells of that
+  // box, unless they are many (dark slices: tiny unit), then the linear scan is cheaper.
+  const double g = std::min(ga, gb);
+  const double r = g > 0 ? std::sqrt(limit) / g * (1 + 1e-5) + 1e-6 : std::numeric_limits<double>::infinity();
+  const size_t n = books_.c.rows();
+  const double ncells = std::isfinite(r) ? (2 * r / kCCell + 2) * (2 * r / kCCell + 2) : 1e300;
+  if (settings_.pruning && ncells <= 256 && ncells * 8 < double(n)) {
+    for (int64_t i = c_cell(a - r), i1 = c_cell(a + r); i <= i1; ++i)
+      for (int64_t j = c_cell(b - r), j1 = c_cell(b + r); j <= j1; ++j) {
+        const auto it = c_grid_.find(c_key(i, j));
+        if (it != c_grid_.end())
+          for (uint32_t e : it->second) consider(e);
+      }
+  } else {
+    for (size_t e = 0; e < n; ++e) consider(e);
+  }
+  if (best >= 0 && best_d <= limit) return uint32_t(best);
+  const float v[2] = {a, b};
+  const uint32_t e = books_.c.append(v);
+  index_c(e);
+  return e;
+}
+
+void Encoder::check_frozen() const {
+  if (books_.p4_index.rows() == 0) throw InputError("encoder: P4 is empty; grow the code-books before freezing them");
+  if (p4_bright_.size() != books_.p4_index.rows() || p2_store_.size() != books_.p2_index.rows())
+    throw InputError("encoder: the code-books grew outside this encoder; encode_growing() syncs them");
+}
+
+// The whole texel as a level-4 query (owning its window statistics) and its SSIM constants.
+Encoder::Query Encoder::texel_query(const std::vector<float>& texel, Ctx& ctx) const {
+  const size_t samples = grid_.samples();
+  ctx.k = SsimConstants::make(settings_, dyn_, luminance_range(texel.data(), samples));
+  ctx.scratch.resize(size_t(3 * g2_.size()));
+  const int nplanes = grid_.n_phi_v * grid_.n_theta_v, n = g2_.size();
+  Query q;
+  q.planes = nplanes;
+  q.values = size_t(3) * samples;
+  q.stats.resize(size_t(2 * 3 * nplanes * n));
+  for (int p = 0; p < nplanes; ++p)
+    for (int c = 0; c < 3; ++c) {
+      float* st = q.stats.data() + size_t(2 * (p * 3 + c) * n);
+      q.views.push_back(make_view(g2_, texel.data() + size_t(c) * samples + size_t(p * n), st, st + n));
+    }
+  q.order_planes(n);
+  return q;
+}
+
+P6Entry Encoder::frozen_entry(const Query& q, const Match& best) const {
+  P6Entry r;
+  r.index = uint32_t(best.index);
+  r.scale = best.scale;
+  r.dissimilarity = score_to_dissimilarity(settings_.metric, best.score, q.values);
+  return r;
+}
+
+P6Entry Encoder::encode_frozen(const float* texel_in) const {
+  check_frozen();
+  const std::vector<float> texel = clamped_texel(texel_in, grid_.samples(), dyn_);
+  Ctx ctx;
+  const Query q = texel_query(texel, ctx);
+  return frozen_entry(q, search_composite(q, 4, kNoBound, ctx));
+}
+
+P6Entry Encoder::encode_frozen_among(const float* texel_in, const std::vector<uint32_t>& order, double floor) const {
+  check_frozen();
+  const std::vector<float> texel = clamped_texel(texel_in, grid_.samples(), dyn_);
+  Ctx ctx;
+  const Query q = texel_query(texel, ctx);
+  const Match best = search_composite_in(q, 4, order, floor, ctx);
+  if (best.index < 0) throw InputError("encoder: no candidate reaches the given floor score");
+  return frozen_entry(q, best);
+}
+
+P6Entry Encoder::encode_frozen_among(const FrozenQuery& f, const std::vector<uint32_t>& order, double floor) const {
+  check_frozen();
+  Ctx ctx;
+  const Query q = frozen_texel_query(f, ctx);
+  const Match best = search_composite_in(q, 4, order, floor, ctx);
+  if (best.index < 0) throw InputError("encoder: no candidate reaches the given floor score");
+  return frozen_entry(q, best);
+}
+
+FrozenQuery Encoder::frozen_query(const float* texel_in) const {
+  check_frozen();
+  FrozenQuery f;
+  f.texel = clamped_texel(texel_in, grid_.samples(), dyn_);
+  Ctx ctx;
+  Query q = texel_query(f.texel, ctx);
+  order_composite(q, 4, ctx);
+  for (int c = 0; c < 3; ++c) {
+    f.c1[c] = ctx.k.c1[c];
+    f.c2[c] = ctx.k.c2[c];
+  }
+  f.stats = std::move(q.stats);
+  f.candidates = std::move(ctx.order);
+  return f;
+}
+
+// The texel query of a FrozenQuery, borrowing its values and window statistics.
+Encoder::Query Encoder::frozen_texel_query(const FrozenQuery& f, Ctx& ctx) const {
+  const size_t samples = grid_.samples();
+  for (int c = 0; c < 3; ++c) {
+    ctx.k.c1[c] = f.c1[c];
+    ctx.k.c2[c] = f.c2[c];
+  }
+  ctx.scratch.resize(size_t(3 * g2_.size()));
+  const int nplanes = grid_.n_phi_v * grid_.n_theta_v, n = g2_.size();
+  if (f.texel.size() != 3 * samples || f.stats.size() != size_t(2 * 3 * nplanes * n))
+    throw InputError("encoder: a frozen query of another grid");
+  Query q;
+  q.planes = nplanes;
+  q.values = size_t(3) * samples;
+  for (int p = 0; p < nplanes; ++p)
+    for (int c = 0; c < 3; ++c) {
+      const float* st = f.stats.data() + size_t(2 * (p * 3 + c) * n);
+      q.views.push_back(view_of(g2_, f.texel.data() + size_t(c) * samples + size_t(p * n), st, st + n));
+    }
+  q.order_planes(n);
+  return q;
+}
+
+void Encoder::p4_planes(uint32_t e, std::vector<uint32_t>& p2, std::vector<uint32_t>& i2,
+                        std::vector<float>& factor) const {
+  std::vector<PlaneRef> planes;
+  planes_of_p4(e, planes);
+  for (const PlaneRef& r : planes) {
+    p2.push_back(r.p2);
+    i2.push_back(r.i2);
+    factor.push_back(r.factor);
+  }
+}
+
+double Encoder::texel_dissimilarity(const float* texel, uint32_t p4, float scale) const {
+  std::vector<float> recon(size_t(3) * grid_.samples());
+  reconstruct_texel(books_, dyn_, p4, scale, recon.data());
+  return btfvq::texel_dissimilarity(settings_, dyn_, grid_, texel, recon.data());
+}
+
+void reconstruct_texel(const Codebooks& k, Dynamic dyn, uint32_t p4, float scale, float* out) {
+  const AngularGrid& g = k.grid;
+  const size_t samples = g.samples();
+  if (p4 >= k.p4_index.rows()) throw InputError("reconstruct_texel: P4 index " + std::to_string(p4) + " is past the end of P4");
+  for (int p = 0; p < g.n_phi_v; ++p) {
+    const uint32_t p3 = k.p4_index.at(p4, size_t(p));
+    const float s4 = k.p4_scale.at(p4, size_t(p));
+    for (int t = 0; t < g.n_theta_v; ++t) {
+      const uint32_t m = k.p3_index.at(p3, size_t(t));
+      const float s = scale * s4 * k.p3_scale.at(p3, size_t(t));
+      const uint32_t p2 = k.m.at(m, 0), i2 = k.m.at(m, 1);
+      for (int a = 0; a < g.n_alpha; ++a) {
+        const float* density = k.p1.row(k.p2_index.at(p2, size_t(a)));
+        const float ps = k.p2_scale.at(p2, size_t(a));
+        const uint32_t* colours = k.i1.row(k.i2.at(i2, size_t(a)));
+        for (int b = 0; b < g.n_beta; ++b) {
+          const size_t i = g.index(p, t, a, b);
+          const float lab[3] = {ps * density[b], k.c.at(colours[b], 0), k.c.at(colours[b], 1)};
+          for (int c = 0; c < 3; ++c) {
+            const float o = channel_offset(dyn, c);
+            out[size_t(c) * samples + i] = channel_scales(dyn, c) ? o + s * (lab[c] - o) : lab[c];
+          }
+        }
+      }
+    }
+  }
+}
+
+double texel_dissimilarity(const SimilaritySettings& s, Dynamic dyn, const AngularGrid& grid, const float* texel,
+                           const float* reconstruction) {
+  const WindowGeometry g(grid.n_alpha, grid.n_beta, s.window_radius);
+  const size_t samples = grid.samples();
+  const float range = luminance_range(texel, samples);
+  const double sim = slice_similarity(s, dyn, g, texel, reconstruction, grid.n_phi_v * grid.n_theta_v, 0, 3, range);
+  return s.metric == Metric::SSIM ? 1.0 - sim : -sim;
+}
+
+}  // namespace btfvq

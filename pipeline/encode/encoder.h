@@ -1,0 +1,199 @@
+#pragma once
+// The multi-level vector quantizer (paper Sec. 4.2-4.3, Fig. 3; docs/encoder.md).
+//
+// Top-down per texel: the whole F_x is matched against P4 (with its best scale); failing that it is
+// split into n_phi_v 3D slices matched against P3, each of those into n_theta_v 2D slices matched
+// against M, and each 2D slice into its luminance (P2, then P1 rows) and chroma (I2, then I1 rows,
+// then C) parts. A vector whose nearest code-vector is not within its threshold is inserted
+// (pruning VQ), bottom-up, and indices and scales are returned upward. Code-books only grow.
+//
+// Scale semantics (the decoder's, FORMAT.md / eq. 4): P2 slices are absolute luminance of the
+// normalized 2D slice, P1 rows are densities whose P2 scale is the row sum; C/I1/I2 chroma is
+// absolute; the P3, P4 and P6 scales multiply RGB, i.e. (Y-16, Cb-128, Cr-128) for LDR and Y alone
+// for HDR. New M, P3 and P4 entries are normalized to a fixed brightness so that slices of one shape
+// but different brightness share entries.
+#include <cstddef>
+#include <cstdint>
+#include <unordered_map>
+#include <vector>
+
+#include "pipeline/codebook.h"
+#include "pipeline/util/config.h"
+#include "pipeline/encode/proxy_index.h"
+#include "pipeline/encode/similarity.h"
+
+namespace btfvq {
+
+// Acceptance thresholds per code-book, as dissimilarities (SSIM: 1 - 2nd percentile of SSIM;
+// MSE: mean squared error in coding-space units). C is a plain Euclidean (a, b) distance.
+struct Thresholds {
+  double p4 = 0.06, p3 = 0.05, m = 0.045, p2 = 0.035, p1 = 0.02, i2 = 0.035, i1 = 0.02, c = 1.0;
+
+  // Reads "thresholds.ssim.*" and "thresholds.mse.*" (both are validated) and returns the set of
+  // the given metric.
+  static Thresholds from(const ParameterDictionary& d, Metric metric);
+  // The same, for the metric named by "similarity.metric".
+  static Thresholds from(const ParameterDictionary& d);
+  // Every dissimilarity times factor (phase 2 of the schedule uses 2.5).
+  Thresholds relaxed(double factor) const;
+};
+
+// The result for one texel: P6 entry (index into P4, scale) and how well it fits.
+struct P6Entry {
+  uint32_t index = 0;
+  float scale = 1.0f;
+  double dissimilarity = 0;  // of the texel and its reconstruction, per the similarity settings
+};
+
+struct EncoderStats {
+  uint64_t texels = 0;
+  uint64_t comparisons = 0;  // candidate evaluations started
+  uint64_t pruned = 0;       // of which abandoned early
+  uint64_t fallbacks = 0;    // new entries re-encoded exactly because their composition missed
+  uint64_t laesa_skipped = 0;  // P4 candidates excluded by the MSE pivot bound (of `pruned`)
+};
+
+// What the batched phase-3 search needs of one texel, computed once: its values with luminance
+// clamped at black (3 x grid.samples(), layout [channel][AngularGrid::index]), its SSIM constants per
+// channel, the window means and variances of every plane and channel (plane-major, [mean | var] of
+// n_alpha x n_beta each), and the P4 candidates encode_frozen() evaluates, in its order (the best by
+// proxy; every entry when candidate_limit is 0).
+struct FrozenQuery {
+  std::vector<float> texel;
+  float c1[3] = {0, 0, 0}, c2[3] = {0, 0, 0};
+  std::vector<float> stats;
+  std::vector<uint32_t> candidates;
+};
+
+// Brightness to which new M, P3 and P4 entries are normalized: mean of (Y - 16) for LDR, of Y for HDR.
+float normalized_brightness(Dynamic dyn);
+
+class Encoder {
+ public:
+  Encoder(Codebooks& books, Dynamic dyn, const Thresholds& thresholds, const SimilaritySettings& settings);
+
+  void set_thresholds(const Thresholds& t) { thresholds_ = t; }
+  const Thresholds& thresholds() const { return thresholds_; }
+  const SimilaritySettings& settings() const { return settings_; }
+  const Codebooks& codebooks() const { return books_; }
+  Dynamic dynamic() const { return dyn_; }
+  const EncoderStats& stats() const { return stats_; }
+
+  // Phases 1 and 2: encodes texel (3 x grid.samples() coding-space floats), growing the code-books.
+  P6Entry encode_growing(const float* texel);
+  // Phase 3: the best P4 entry and its scale; no insertion. Throws InputError if P4 is empty.
+  // Thread-safe (const) as long as nobody grows the code-books at the same time.
+  P6Entry encode_frozen(const float* texel) const;
+
+  // The pieces of encode_frozen() for the batched search (pipeline/encode/frozen_search.h):
+  // the texel as the comparison sees it, with its candidates;
+  FrozenQuery frozen_query(const float* texel) const;
+  // the exact search among `order` that only accepts scores >= floor (throws InputError if none
+  // does): equal to encode_frozen() whenever the best candidate's score is >= floor and in `order`;
+  P6Entry encode_frozen_among(const FrozenQuery& query, const std::vector<uint32_t>& order, double floor) const;
+  P6Entry encode_frozen_among(const float* texel, const std::vector<uint32_t>& order, double floor) const;
+  // the M planes of a P4 entry (n_phi_v x n_theta_v, phi_v-major): P2 and I2 entries and the
+  // product of the P4 and P3 scales;
+  void p4_planes(uint32_t p4, std::vector<uint32_t>& p2, std::vector<uint32_t>& i2, std::vector<float>& factor) const;
+  // and the cached P2 (luminance) and I2 (chroma) planes with their window statistics.
+  const SliceStore& luminance_planes() const { return p2_store_; }
+  const SliceStore& chroma_planes() const { return i2_store_; }
+
+  // Dissimilarity of the texel and its reconstruction from (p4, scale), per the similarity settings.
+  double texel_dissimilarity(const float* texel, uint32_t p4, float scale) const;
+
+  struct Ctx;  // per-call scratch (public so that helpers in encoder.cpp can name it)
+
+ private:
+  struct PlaneRef {
+    uint32_t p2, i2;
+    float factor;
+  };
+  struct Query;
+  Query frozen_texel_query(const FrozenQuery& f, Ctx& ctx) const;
+  struct Match {
+    int64_t index = -1;
+    double score = -1e300;
+    float scale = 1.0f;
+  };
+
+  void sync();
+  void cache_p1(uint32_t e);
+  void cache_i1(uint32_t e);
+  void cache_p2(uint32_t e);
+  void cache_i2(uint32_t e);
+  void cache_m(uint32_t e);
+  void cache_p3(uint32_t e);
+  void cache_p4(uint32_t e);
+
+  double bound_for(double threshold, size_t values) const;
+  void planes_of_p4(uint32_t e, std::vector<PlaneRef>& out) const;
+  void planes_of_p3(uint32_t e, std::vector<PlaneRef>& out) const;
+
+  // Scores a composite candidate (list of M planes) against the query with its best scale.
+  bool evaluate_composite(const Query& q, const PlaneRef* planes, int np, double bound, Ctx& ctx, double* score,
+                          float* scale) const;
+  Match search_composite(const Query& q, int level, double bound, Ctx& ctx) const;
+  // search_composite in two steps: the candidate order (into ctx.order), then the search.
+  void order_composite(const Query& q, int level, Ctx& ctx) const;
+  Match search_composite_in(const Query& q, int level, const std::vector<uint32_t>& order, double bound,
+                            Ctx& ctx) const;
+  void check_frozen() const;
+  Query texel_query(const std::vector<float>& texel, Ctx& ctx) const;
+  P6Entry frozen_entry(const Query& q, const Match& best) const;
+  Match search_p2(const Query& q, double bound, Ctx& ctx) const;
+  Match search_i2(const Query& q, double bound, Ctx& ctx) const;
+  Match search_p1(const float* row, float unit, double bound, Ctx& ctx) const;
+  Match search_i1(const float* row, float unit, double bound, Ctx& ctx) const;
+
+  Match encode_p4(const float* texel, Ctx& ctx, bool exact);
+  Match encode_p3(const Query& q, Ctx& ctx, bool exact);
+  Match encode_m(const Query& q, Ctx& ctx, bool exact);
+  uint32_t encode_p2(const Query& q, Ctx& ctx, bool exact);
+  uint32_t encode_i2(const Query& q, Ctx& ctx, bool exact);
+  Match encode_p1(const float* row, float unit, Ctx& ctx, bool exact);
+  uint32_t encode_i1(const float* row /* a, then b */, float unit, Ctx& ctx, bool exact);
+  uint32_t encode_c(float a, float b, float unit, bool exact);
+
+  Codebooks& books_;
+  Dynamic dyn_;
+  Thresholds thresholds_;
+  SimilaritySettings settings_;
+  AngularGrid grid_;
+  WindowGeometry g2_, g1_;
+  SliceStore p1_store_, i1_store_, p2_store_, i2_store_;
+  // Candidate order of the 1D code-books: P1 by the angle of the row shapes (unit vectors), I1 by
+  // the Euclidean distance of the stored (a, b) rows.
+  ProxyIndex p1_index_, i1_index_;
+  bool indexed_1d() const { return settings_.pruning && settings_.candidate_limit > 0; }
+  std::vector<float> m_sig_, p3_sig_, p4_sig_;         // proxy signatures (offset-removed means)
+  std::vector<float> p2_sig_, i2_sig_;                 // row means
+  std::vector<float> m_bright_, p3_bright_, p4_bright_;  // mean of (Y - offset)
+  std::unordered_map<uint64_t, uint32_t> m_lookup_;    // (P2, I2) -> M
+  // C entries bucketed on a square grid of their stored (a, b) values: a C search only visits the
+  // cells within its acceptance radius (exactly the linear scan's choice; used when pruning is on).
+  std::unordered_map<uint64_t, std::vector<uint32_t>> c_grid_;
+  size_t c_indexed_ = 0;
+  void index_c(uint32_t e);
+  // LAESA pivot index over P4 for the MSE metric (paper 5.1.1): angles between offset-removed
+  // entries are a metric, and the least-squares residual is |x'|^2 sin^2(angle).
+  static constexpr int kPivots = 8;
+  std::vector<uint32_t> pivots_;
+  std::vector<double> pivot_angle_;  // P4 entries x kPivots (NaN: undefined)
+  std::vector<double> p4_norm_;      // |entry'| over the channels an RGB scale acts on
+  double plane_dot(const PlaneRef& a, const PlaneRef& b) const;
+  void laesa_insert(uint32_t e);
+  mutable EncoderStats stats_;
+};
+
+// Exact node values of a P4 entry at `scale` (3 x grid.samples() floats, coding space, layout
+// [channel][AngularGrid::index]) per the decode semantics (no interpolation at nodes; the decoder's
+// clamp of RGB at 0 is not applied).
+void reconstruct_texel(const Codebooks& books, Dynamic dyn, uint32_t p4, float scale, float* out);
+
+// Dissimilarity of two texels (3 x grid.samples(), coding space) over all planes and channels, with
+// no scale fitting: an independent check of what the encoder guarantees.
+double texel_dissimilarity(const SimilaritySettings& s, Dynamic dyn, const AngularGrid& grid, const float* texel,
+                           const float* reconstruction);
+
+}  // namespace btfvq

@@ -1,0 +1,452 @@
+#include "pipeline/encode/frozen_search.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <exception>
+#include <thread>
+
+#include <btfvq/error.h>
+#include "pipeline/runtime/opencl_runtime.h"
+
+namespace btfvq {
+
+namespace {
+
+// Half-width of the rounding margin around a bin's edges: the kernel, its reference and the exact
+// comparison sum the same float products in different orders (differences are ~1e-5 in SSIM).
+constexpr double kMargin = 5e-4;
+// kernels/search.cl's histogram and its private row buffer.
+constexpr int kBins = 512, kMaxRows = 30, kLanes = 16, kMaxPlanes = 256;
+// Launches of at most kChunk texels bound the padded queries and the scratch values (~1 MB per texel).
+constexpr size_t kChunk = 128;
+
+double seconds_since(std::chrono::steady_clock::time_point t) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+}
+
+// The padded row layout of kernels/search.cl: one plane channel as (rows + 2 radius) rows of 16
+// lanes of values with a zero border, then rows x 16 window means and rows x 16 variances.
+struct PaddedPlane {
+  int rows, cols, radius;
+  static bool fits(int rows, int cols, int radius) {
+    return radius <= 2 && cols + 2 * radius <= kLanes && rows <= kMaxRows;
+  }
+  size_t padded() const { return size_t(rows + 2 * radius); }
+  size_t block() const { return (padded() + 2 * size_t(rows)) * kLanes; }
+  // Values and means minus the channel offset (kernels/search.cl).
+  void pack(const float* v, const float* mean, const float* var, float offset, float* out) const {
+    std::fill(out, out + block(), 0.0f);
+    float* m = out + padded() * kLanes;
+    float* w = m + size_t(rows) * kLanes;
+    for (int r = 0; r < rows; ++r)
+      for (int c = 0; c < cols; ++c) {
+        const size_t i = size_t(r * cols + c), lane = size_t(c + radius);
+        out[size_t(r + radius) * kLanes + lane] = v[i] - offset;
+        m[size_t(r) * kLanes + lane] = mean[i] - offset;
+        w[size_t(r) * kLanes + lane] = var[i];
+      }
+  }
+};
+
+// The C++ reference of kernels/search.cl's search_texels for one texel, scalar and on the unpadded
+// layout (FrozenSearch::query_block; SliceStore blocks): the same order, scale, abandonment and bins.
+struct ReferenceInputs {
+  const uint32_t *plane_p2, *plane_i2;
+  const float *plane_f, *lum, *chroma, *inv_count;
+  size_t lum_stride, chroma_stride;
+  int rows, cols, radius, planes, hdr, keep;
+};
+
+float search_offset(int hdr, int c) { return hdr ? 0.0f : (c == 0 ? 16.0f : 128.0f); }
+bool search_scales(int hdr, int c) { return !hdr || c == 0; }
+
+void search_reference(const ReferenceInputs& in, const float* query, const float* consts, const uint32_t* candidates,
+                      size_t slots, int* bins) {
+  const int n = in.rows * in.cols;
+  // Where the candidate's values, means and variances of plane channel c live, and their spacing.
+  auto entry = [&](size_t e, int j, int c, int* spacing) {
+    const size_t at = e * size_t(in.planes) + size_t(j);
+    *spacing = c == 0 ? n : 2 * n;
+    return c == 0 ? in.lum + in.plane_p2[at] * in.lum_stride
+                  : in.chroma + in.plane_i2[at] * in.chroma_stride + size_t(c - 1) * size_t(n);
+  };
+  std::vector<float> values(size_t(in.planes) * 3 * size_t(n));
+  float floor = -1e30f;
+  std::vector<int> order(size_t(in.planes));
+  for (int j = 0; j < in.planes; ++j) order[size_t(j)] = j;
+  for (size_t k = 0; k < slots; ++k) {
+    const size_t e = candidates[k];
+    float num = 0.0f, den = 0.0f;
+    for (int j = 0; j < in.planes; ++j)
+      for (int c = 0; c < 3; ++c) {
+        if (!search_scales(in.hdr, c)) continue;
+        int spacing;
+        const float* x = query + size_t(j * 3 + c) * 3 * size_t(n);
+        const float* y = entry(e, j, c, &spacing);
+        const float o = search_offset(in.hdr, c), f = in.plane_f[e * size_t(in.planes) + size_t(j)];
+        float xy = 0.0f, yy = 0.0f;
+        for (int i = 0; i < n; ++i) {
+          xy += (x[i] - o) * (y[i] - o);
+          yy += (y[i] - o) * (y[i] - o);
+        }
+        num += f * xy;
+        den += f * f * yy;
+      }
+    const float s = den > 1e-20f ? std::max(num / den, 0.0f) : 1.0f;
+    int below = 0;
+    for (int q = 0; q < in.planes && below < in.keep; ++q)
+      for (int c = 0, j = order[size_t(q)]; c < 3; ++c) {
+        int spacing;
+        const float* x = query + size_t(j * 3 + c) * 3 * size_t(n);
+        const float* y = entry(e, j, c, &spacing);
+        const bool scaled = search_scales(in.hdr, c);
+        const float b = scaled ? s * in.plane_f[e * size_t(in.planes) + size_t(j)] : 1.0f;
+        const float a = scaled ? search_offset(in.hdr, c) * (1.0f - b) : 0.0f;
+        const float c1 = consts[c], c2 = consts[3 + c];
+        for (int r = 0; r < in.rows; ++r)
+          for (int col = 0; col < in.cols; ++col) {
+            float exy = 0.0f;
+            for (int rr = std::max(r - in.radius, 0); rr <= std::min(r + in.radius, in.rows - 1); ++rr)
+              for (int kk = std::max(col - in.radius, 0); kk <= std::min(col + in.radius, in.cols - 1); ++kk)
+                exy += x[rr * in.cols + kk] * y[rr * in.cols + kk];
+            const int i = r * in.cols + col;
+            const float mx = x[n + i], ym = y[spacing + i], my = a + b * ym;
+            const float cov = b * (exy * in.inv_count[i] - mx * ym);
+            const float vx = x[2 * n + i], vy = b * b * y[2 * spacing + i];
+            const float v = ((2.0f * mx * my + c1) * (2.0f * cov + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2));
+            values[size_t(j * 3 + c) * size_t(n) + size_t(i)] = v;
+            below += v < floor;
+          }
+      }
+    if (below >= in.keep) {
+      bins[k] = -1;
+      continue;
+    }
+    std::vector<unsigned> histogram(kBins, 0);
+    for (float v : values) histogram[size_t(std::clamp(int(v * float(kBins)), 0, kBins - 1))] += 1;
+    int bin = kBins - 1;
+    for (unsigned seen = 0, b = 0; b < unsigned(kBins); ++b)
+      if ((seen += histogram[b]) >= unsigned(in.keep)) {
+        bin = int(b);
+        break;
+      }
+    bins[k] = bin;
+    if (k == 0) {
+      // The planes holding most of the first candidate's values in bins 0..bin first (stable).
+      std::vector<int> low(size_t(in.planes), 0);
+      for (size_t i = 0; i < values.size(); ++i)
+        low[i / (3 * size_t(n))] += std::clamp(int(values[i] * float(kBins)), 0, kBins - 1) <= bin;
+      std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return low[size_t(a)] > low[size_t(b)]; });
+    }
+    floor = std::max(floor, bin <= 0 ? -1e30f : float(bin) / float(kBins) - float(kMargin));
+  }
+}
+
+}  // namespace
+
+struct FrozenSearch::Device {
+  cl::Buffer plane_p2, plane_i2, plane_f, entry_yy, lum, chroma, inv_count;
+  // Per-launch buffers, kept for the next batch: padded queries, constants, candidates, scratch, bins.
+  cl::Buffer queries, consts, candidates, scratch, bins;
+  size_t slots = 0;  // capacity of candidates and bins: kChunk x slots
+};
+
+bool FrozenSearch::kernel_fits(const AngularGrid& g, int radius) {
+  return PaddedPlane::fits(g.n_alpha, g.n_beta, radius) && g.n_phi_v * g.n_theta_v <= kMaxPlanes;
+}
+
+SearchPath FrozenSearch::preferred(const AngularGrid& g, const SimilaritySettings& s) {
+  // Measured in BENCHMARKS.md "Phase 3 search paths": the vectorized kernel on PoCL is faster than
+  // the pruned search on the CPU; without OpenCL (or for planes the kernel's rows cannot hold) the
+  // pruned search is the fastest path.
+  if (s.metric == Metric::SSIM && kernel_fits(g, s.window_radius) && ComputeDevice::get().uses_opencl())
+    return SearchPath::BatchedOpenCL;
+  return SearchPath::Pruned;
+}
+
+FrozenSearch::FrozenSearch(const Encoder& encoder, SearchPath path, int threads)
+    : encoder_(encoder), path_(path), threads_(std::max(1, threads)) {
+  // The histogram brackets SSIM percentiles; the MSE metric keeps the pruned (LAESA) search.
+  if (encoder.settings().metric != Metric::SSIM) path_ = SearchPath::Pruned;
+  if (path_ == SearchPath::Pruned) return;
+  const Codebooks& k = encoder.codebooks();
+  const AngularGrid& g = k.grid;
+  const int radius = encoder.settings().window_radius;
+  const WindowGeometry geometry(g.n_alpha, g.n_beta, radius);
+  for (int i = 0; i < geometry.size(); ++i) inv_count_.push_back(geometry.inv_count(i));
+  for (uint32_t e = 0; e < k.p4_index.rows(); ++e) encoder.p4_planes(e, plane_p2_, plane_i2_, plane_f_);
+  keep_ = int(std::floor(encoder.settings().outlier_fraction * double(3 * g.samples()) + 1e-9)) + 1;
+  if (path_ != SearchPath::BatchedOpenCL) return;
+  auto& dev = ComputeDevice::get();
+  if (!dev.uses_opencl()) throw DeviceError("the batched OpenCL search needs OpenCL: " + dev.description());
+  if (!kernel_fits(g, radius))
+    throw DeviceError("the batched OpenCL search holds at most " + std::to_string(kMaxPlanes) + " planes of at most " +
+                      std::to_string(kMaxRows) + " x " + std::to_string(kLanes - 2 * radius) +
+                      " samples at window radius " + std::to_string(radius) + " (at most 2); this grid has " +
+                      std::to_string(g.n_phi_v * g.n_theta_v) + " planes of " + std::to_string(g.n_alpha) + " x " +
+                      std::to_string(g.n_beta));
+  const PaddedPlane layout{g.n_alpha, g.n_beta, radius};
+  const size_t n = size_t(geometry.size());
+  const int hdr = encoder.dynamic() == Dynamic::HDR;
+  // Code-book planes in the kernel's padded rows (one block per channel; channel c of the store is
+  // colour channel first + c), and each entry channel's sum of squares about the offset.
+  auto padded = [&](const SliceStore& store, int first, std::vector<double>& yy) {
+    const size_t channels = size_t(store.channels()), entries = store.size();
+    std::vector<float> out(entries * channels * layout.block());
+    yy.assign(entries * channels, 0.0);
+    for (size_t e = 0; e < entries; ++e)
+      for (size_t c = 0; c < channels; ++c) {
+        const float* v = store.blocks().data() + e * store.stride() + c * n;
+        const float o = search_offset(hdr, first + int(c));
+        layout.pack(v, v + channels * n, v + 2 * channels * n, o, out.data() + (e * channels + c) * layout.block());
+        for (size_t i = 0; i < n; ++i) yy[e * channels + c] += double(v[i] - o) * double(v[i] - o);
+      }
+    return out;
+  };
+  std::vector<double> lum_yy, chroma_yy;
+  const std::vector<float> lum = padded(encoder.luminance_planes(), 0, lum_yy);
+  const std::vector<float> chroma = padded(encoder.chroma_planes(), 1, chroma_yy);
+  // The least-squares denominator of every P4 entry: sum over planes and scaled channels of f^2 yy.
+  const size_t planes = size_t(g.n_phi_v * g.n_theta_v);
+  std::vector<float> entry_yy(k.p4_index.rows());
+  for (size_t e = 0; e < entry_yy.size(); ++e) {
+    double d = 0;
+    for (size_t j = 0; j < planes; ++j) {
+      const size_t at = e * planes + j;
+      double yy = lum_yy[plane_p2_[at]];
+      if (search_scales(hdr, 1)) yy += chroma_yy[plane_i2_[at] * 2] + chroma_yy[plane_i2_[at] * 2 + 1];
+      d += double(plane_f_[at]) * double(plane_f_[at]) * yy;
+    }
+    entry_yy[e] = float(d);
+  }
+  std::vector<float> inv(size_t(g.n_alpha) * kLanes, 0.0f);
+  for (int r = 0; r < g.n_alpha; ++r)
+    for (int c = 0; c < g.n_beta; ++c) inv[size_t(r) * kLanes + size_t(c + radius)] = inv_count_[size_t(r * g.n_beta + c)];
+  device_ = std::make_unique<Device>();
+  opencl_call("uploading the frozen code-books", [&] {
+    device_->plane_p2 = dev.upload(plane_p2_);
+    device_->plane_i2 = dev.upload(plane_i2_);
+    device_->plane_f = dev.upload(plane_f_);
+    device_->entry_yy = dev.upload(entry_yy);
+    device_->lum = dev.upload(lum);
+    device_->chroma = dev.upload(chroma);
+    device_->inv_count = dev.upload(inv);
+  });
+}
+
+FrozenSearch::~FrozenSearch() = default;
+
+void FrozenSearch::bracket(int bin, double* lower, double* upper) {
+  *lower = bin <= 0 ? -1e300 : double(bin) / kBins - kMargin;
+  *upper = bin >= kBins - 1 ? 1e300 : double(bin + 1) / kBins + kMargin;
+}
+
+template <class F>
+void FrozenSearch::parallel(size_t n, F&& f) const {
+  const int workers = int(std::min<size_t>(size_t(threads_), std::max<size_t>(n, 1)));
+  std::vector<std::thread> pool;
+  std::vector<std::exception_ptr> errors(static_cast<size_t>(workers));
+  for (int w = 0; w < workers; ++w)
+    pool.emplace_back([&, w] {
+      try {
+        for (size_t i = size_t(w); i < n; i += size_t(workers)) f(i);
+      } catch (...) {
+        errors[size_t(w)] = std::current_exception();
+      }
+    });
+  for (auto& t : pool) t.join();
+  for (auto& e : errors)
+    if (e) std::rethrow_exception(e);
+}
+
+std::vector<float> FrozenSearch::query_block(const FrozenQuery& q) const {
+  const AngularGrid& g = encoder_.codebooks().grid;
+  const size_t n = size_t(g.n_alpha * g.n_beta), planes = size_t(g.n_phi_v * g.n_theta_v), samples = g.samples();
+  std::vector<float> block(planes * 3 * 3 * n);
+  for (size_t p = 0; p < planes; ++p)
+    for (size_t c = 0; c < 3; ++c) {
+      float* out = block.data() + (p * 3 + c) * 3 * n;
+      const float* v = q.texel.data() + c * samples + p * n;
+      const float* st = q.stats.data() + (p * 3 + c) * 2 * n;
+      std::copy(v, v + n, out);
+      std::copy(st, st + 2 * n, out + n);
+    }
+  return block;
+}
+
+std::vector<int> FrozenSearch::bins(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates,
+                                    size_t slots) {
+  if (path_ == SearchPath::Pruned) throw InputError("frozen search: the pruned path has no batch");
+  const size_t texels = queries.size();
+  if (candidates.size() != texels * slots) throw InputError("frozen search: candidates must be texels x slots");
+  for (uint32_t e : candidates)
+    if (e >= encoder_.codebooks().p4_index.rows()) throw InputError("frozen search: candidate past the end of P4");
+  const AngularGrid& g = encoder_.codebooks().grid;
+  for (const FrozenQuery& q : queries)
+    if (q.texel.size() != 3 * g.samples() || q.stats.size() != 2 * 3 * g.samples())
+      throw InputError("frozen search: a query of another grid (use Encoder::frozen_query)");
+  std::vector<int> out(texels * slots);
+  if (out.empty()) return out;
+  const auto t0 = std::chrono::steady_clock::now();
+  if (path_ == SearchPath::BatchedReference) bins_reference(queries, candidates, slots, out);
+  else bins_opencl(queries, candidates, slots, out);
+  stats_.device_seconds += seconds_since(t0);
+  return out;
+}
+
+void FrozenSearch::bins_reference(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates,
+                                  size_t slots, std::vector<int>& out) const {
+  const AngularGrid& g = encoder_.codebooks().grid;
+  const ReferenceInputs in{plane_p2_.data(),
+                           plane_i2_.data(),
+                           plane_f_.data(),
+                           encoder_.luminance_planes().blocks().data(),
+                           encoder_.chroma_planes().blocks().data(),
+                           inv_count_.data(),
+                           encoder_.luminance_planes().stride(),
+                           encoder_.chroma_planes().stride(),
+                           g.n_alpha,
+                           g.n_beta,
+                           encoder_.settings().window_radius,
+                           g.n_phi_v * g.n_theta_v,
+                           encoder_.dynamic() == Dynamic::HDR,
+                           keep_};
+  parallel(queries.size(), [&](size_t t) {
+    const std::vector<float> block = query_block(queries[t]);
+    float consts[6];
+    for (int c = 0; c < 3; ++c) consts[c] = queries[t].c1[c], consts[3 + c] = queries[t].c2[c];
+    search_reference(in, block.data(), consts, candidates.data() + t * slots, slots, out.data() + t * slots);
+  });
+}
+
+void FrozenSearch::bins_opencl(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates,
+                               size_t slots, std::vector<int>& out) const {
+  const AngularGrid& g = encoder_.codebooks().grid;
+  const int rows = g.n_alpha, cols = g.n_beta, planes = g.n_phi_v * g.n_theta_v;
+  const int radius = encoder_.settings().window_radius, hdr = encoder_.dynamic() == Dynamic::HDR;
+  const PaddedPlane layout{rows, cols, radius};
+  const size_t n = size_t(rows * cols), samples = g.samples(), stride = size_t(planes) * 3 * layout.block();
+  auto& dev = ComputeDevice::get();
+  cl::CommandQueue& queue = dev.queue();
+  Device& d = *device_;
+  const size_t scratch = size_t(planes) * 3 * size_t(rows) * 2 * kLanes;
+  opencl_call("allocating the batch buffers", [&] {
+    if (!d.queries()) {
+      const cl_mem_flags in = CL_MEM_READ_ONLY | CL_MEM_ALLOC_HOST_PTR;
+      d.queries = dev.allocate(kChunk * stride * sizeof(float), in);
+      d.consts = dev.allocate(kChunk * 6 * sizeof(float), in);
+      d.scratch = dev.allocate(kChunk * scratch * sizeof(float));
+    }
+    if (d.slots < slots) {
+      d.candidates = dev.allocate(kChunk * slots * sizeof(uint32_t), CL_MEM_READ_ONLY | CL_MEM_ALLOC_HOST_PTR);
+      d.bins = dev.allocate(kChunk * slots * sizeof(int), CL_MEM_WRITE_ONLY | CL_MEM_ALLOC_HOST_PTR);
+      d.slots = slots;
+    }
+  });
+  for (size_t first = 0; first < queries.size(); first += kChunk) {
+    const size_t texels = std::min(kChunk, queries.size() - first);
+    opencl_call("scoring a batch of texels against the frozen code-books", [&] {
+      {
+        const cl_map_flags w = CL_MAP_WRITE_INVALIDATE_REGION;
+        Mapped<float> blocks(queue, d.queries, w, texels * stride), consts(queue, d.consts, w, texels * 6);
+        Mapped<uint32_t> cand(queue, d.candidates, w, texels * slots);
+        std::copy_n(candidates.data() + first * slots, texels * slots, cand.get());
+        parallel(texels, [&](size_t t) {
+          const FrozenQuery& q = queries[first + t];
+          for (size_t p = 0; p < size_t(planes); ++p)
+            for (size_t c = 0; c < 3; ++c) {
+              const float* st = q.stats.data() + (p * 3 + c) * 2 * n;
+              layout.pack(q.texel.data() + c * samples + p * n, st, st + n, search_offset(hdr, int(c)),
+                          blocks.get() + t * stride + (p * 3 + c) * layout.block());
+            }
+          for (size_t c = 0; c < 3; ++c) consts.get()[t * 6 + c] = q.c1[c], consts.get()[t * 6 + 3 + c] = q.c2[c];
+        });
+      }
+      cl::Kernel kernel = dev.kernel("search.cl", "search_texels");
+      int a = 0;
+      kernel.setArg(a++, d.queries);
+      kernel.setArg(a++, d.consts);
+      kernel.setArg(a++, d.candidates);
+      kernel.setArg(a++, cl_int(texels));
+      kernel.setArg(a++, cl_int(slots));
+      kernel.setArg(a++, d.plane_p2);
+      kernel.setArg(a++, d.plane_i2);
+      kernel.setArg(a++, d.plane_f);
+      kernel.setArg(a++, d.entry_yy);
+      kernel.setArg(a++, cl_int(planes));
+      kernel.setArg(a++, d.lum);
+      kernel.setArg(a++, d.chroma);
+      kernel.setArg(a++, d.inv_count);
+      kernel.setArg(a++, cl_int(rows));
+      kernel.setArg(a++, cl_int(cols));
+      kernel.setArg(a++, cl_int(radius));
+      kernel.setArg(a++, cl_int(hdr));
+      kernel.setArg(a++, cl_int(keep_));
+      kernel.setArg(a++, d.scratch);
+      kernel.setArg(a++, d.bins);
+      // One texel per work-item and work-group: the work-items share nothing, and PoCL runs the groups
+      // on all cores.
+      queue.enqueueNDRangeKernel(kernel, cl::NullRange, cl::NDRange(texels), cl::NDRange(1));
+      Mapped<int> result(queue, d.bins, CL_MAP_READ, texels * slots);
+      std::copy_n(result.get(), texels * slots, out.data() + first * slots);
+    });
+  }
+}
+
+void FrozenSearch::encode(const float* texels, size_t n, P6Entry* out) {
+  // With one or two P4 entries there is nothing to abandon, and the batch's fixed host work per texel
+  // (packing its query, settling the winner exactly) costs more than the kernel saves.
+  if (path_ == SearchPath::Pruned || encoder_.codebooks().p4_index.rows() < 3) encode_pruned(texels, n, out);
+  else encode_batched(texels, n, out);
+  stats_.texels += n;
+}
+
+void FrozenSearch::encode_pruned(const float* texels, size_t n, P6Entry* out) {
+  const size_t values = 3 * encoder_.codebooks().grid.samples();
+  parallel(n, [&](size_t i) { out[i] = encoder_.encode_frozen(texels + i * values); });
+}
+
+void FrozenSearch::encode_batched(const float* texels, size_t n, P6Entry* out) {
+  const size_t values = 3 * encoder_.codebooks().grid.samples();
+  auto t0 = std::chrono::steady_clock::now();
+  std::vector<FrozenQuery> queries(n);
+  parallel(n, [&](size_t i) { queries[i] = encoder_.frozen_query(texels + i * values); });
+  const size_t slots = n ? queries[0].candidates.size() : 0;
+  std::vector<uint32_t> candidates;
+  candidates.reserve(n * slots);
+  for (const auto& q : queries) {
+    if (q.candidates.size() != slots)
+      throw InputError("frozen search: texels of one batch have different candidate counts");
+    candidates.insert(candidates.end(), q.candidates.begin(), q.candidates.end());
+  }
+  const std::vector<int> bin = bins(queries, candidates, slots);
+  stats_.batch_seconds += seconds_since(t0);
+  stats_.scored += n * slots;
+
+  t0 = std::chrono::steady_clock::now();
+  std::vector<size_t> settled(n, 0);
+  parallel(n, [&](size_t i) {
+    std::vector<double> lower(slots), upper(slots);
+    double floor = -1e300;
+    for (size_t k = 0; k < slots; ++k) {
+      if (bin[i * slots + k] < 0) continue;
+      bracket(bin[i * slots + k], &lower[k], &upper[k]);
+      floor = std::max(floor, lower[k]);
+    }
+    // Only completed candidates whose bracket reaches the best lower bound can win (an abandoned one
+    // scored below a completed one's lower bound); try the likeliest first.
+    std::vector<size_t> keep;
+    for (size_t k = 0; k < slots; ++k)
+      if (bin[i * slots + k] >= 0 && upper[k] >= floor) keep.push_back(k);
+    std::stable_sort(keep.begin(), keep.end(), [&](size_t a, size_t b) { return lower[a] > lower[b]; });
+    std::vector<uint32_t> pick;
+    for (size_t k : keep) pick.push_back(queries[i].candidates[k]);
+    settled[i] = pick.size();
+    out[i] = encoder_.encode_frozen_among(queries[i], pick, floor);
+  });
+  for (size_t s : settled) stats_.settled += s;
+  stats_.settle_seconds += seconds_since(t0);
+}
+
+}  // namespace btfvq

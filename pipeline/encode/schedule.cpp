@@ -1,0 +1,170 @@
+#include "pipeline/encode/schedule.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <future>
+#include <memory>
+
+#include <btfvq/error.h>
+#include "pipeline/runtime/opencl_runtime.h"
+
+namespace btfvq {
+
+ScheduleSettings ScheduleSettings::from(const ParameterDictionary& d) {
+  ScheduleSettings s;
+  s.phase1_fraction = d.number("schedule.phase1_fraction", 0.0, 1.0);
+  s.phase2_fraction = d.number("schedule.phase2_fraction", 0.0, 1.0);
+  if (s.phase1_fraction + s.phase2_fraction > 1.0)
+    throw ConfigError(d.origin() + ": 'schedule.phase1_fraction' + 'schedule.phase2_fraction' must not exceed 1");
+  s.relax_factor = d.number("schedule.relax_factor", 1.0, 100.0);
+  s.tile_texels = d.integer("schedule.tile_texels", 1, 1 << 16);
+  s.threads = d.integer("schedule.threads", 1, 256);
+  s.search = d.string("schedule.search");
+  if (s.search != "auto" && s.search != "pruned" && s.search != "batched" && s.search != "batched-reference")
+    throw ConfigError(d.origin() + ": 'schedule.search' = '" + s.search +
+                      "' must be \"auto\", \"pruned\", \"batched\" or \"batched-reference\"");
+  return s;
+}
+
+SearchPath ScheduleSettings::search_path(const AngularGrid& grid, const SimilaritySettings& similarity) const {
+  if (search == "pruned") return SearchPath::Pruned;
+  if (search == "batched-reference") return SearchPath::BatchedReference;
+  if (search == "batched")
+    return ComputeDevice::get().uses_opencl() ? SearchPath::BatchedOpenCL : SearchPath::BatchedReference;
+  return FrozenSearch::preferred(grid, similarity);
+}
+
+CodebookSizes CodebookSizes::of(const Codebooks& k) {
+  return {k.p1.rows(), k.c.rows(), k.i1.rows(), k.i2.rows(), k.p2_index.rows(), k.m.rows(), k.p3_index.rows(),
+          k.p4_index.rows()};
+}
+
+namespace {
+
+double radical_inverse(uint64_t i, uint32_t base) {
+  double inv = 1.0 / base, f = inv, r = 0;
+  while (i > 0) {
+    r += f * double(i % base);
+    i /= base;
+    f *= inv;
+  }
+  return r;
+}
+
+}  // namespace
+
+std::vector<uint32_t> halton_order(int width, int height) {
+  if (width <= 0 || height <= 0) throw InputError("halton_order: width and height must be positive");
+  const size_t n = size_t(width) * size_t(height);
+  std::vector<uint32_t> order;
+  order.reserve(n);
+  std::vector<uint8_t> seen(n, 0);
+  for (uint64_t i = 1; order.size() < n && i <= 16 * uint64_t(n) + 16; ++i) {
+    const int x = std::min(width - 1, int(radical_inverse(i, 2) * width));
+    const int y = std::min(height - 1, int(radical_inverse(i, 3) * height));
+    const size_t id = size_t(y) * size_t(width) + size_t(x);
+    if (!seen[id]) {
+      seen[id] = 1;
+      order.push_back(uint32_t(id));
+    }
+  }
+  for (size_t id = 0; id < n; ++id)
+    if (!seen[id]) order.push_back(uint32_t(id));
+  return order;
+}
+
+void phase_sizes(size_t texels, const ScheduleSettings& s, size_t* phase1, size_t* phase2) {
+  size_t a = size_t(std::llround(s.phase1_fraction * double(texels)));
+  a = std::clamp<size_t>(a, texels > 0 ? 1 : 0, texels);
+  size_t b = size_t(std::llround(s.phase2_fraction * double(texels)));
+  b = std::min(b, texels - a);
+  *phase1 = a;
+  *phase2 = b;
+}
+
+ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height, const TexelSource& source,
+                            const Thresholds& thresholds, const SimilaritySettings& similarity,
+                            const ScheduleSettings& schedule, const std::function<void(const ScheduleProgress&)>& progress,
+                            const std::function<bool()>& cancelled) {
+  if (!source) throw InputError("run_schedule: no texel source");
+  const std::vector<uint32_t> order = halton_order(width, height);
+  const size_t total = order.size(), samples = books.grid.samples();
+  size_t n1, n2;
+  phase_sizes(total, schedule, &n1, &n2);
+  const size_t bounds[4] = {0, n1, n1 + n2, total};
+
+  ScheduleResult result;
+  result.p6_index.assign(total, -1);
+  result.p6_scale.assign(total, 0.0f);
+  result.dissimilarity.assign(total, 0.0f);
+  Encoder encoder(books, dyn, thresholds, similarity);
+  const size_t tile = size_t(schedule.tile_texels);
+  std::unique_ptr<FrozenSearch> frozen;  // built when phase 3 starts: the code-books are final then
+
+  // Tiles of consecutive texels in Halton order, never crossing a phase boundary. The next tile is
+  // resampled on another thread while the current one is encoded (phases 1 and 2 grow the
+  // code-books on one thread), so memory holds two tiles of resampled texels at most.
+  struct Tile {
+    int phase;
+    size_t at, n;
+  };
+  std::vector<Tile> tiles;
+  for (int phase = 1; phase <= 3; ++phase)
+    for (size_t at = bounds[phase - 1]; at < bounds[phase]; at += tile)
+      tiles.push_back({phase, at, std::min(tile, bounds[phase] - at)});
+  std::vector<float> buffers[2];
+  auto resample = [&](size_t k) {
+    std::vector<float>& buffer = buffers[k % 2];
+    buffer.resize(tiles[k].n * 3 * samples);
+    source(order.data() + tiles[k].at, tiles[k].n, buffer.data());
+  };
+  std::future<void> next;
+  if (!tiles.empty()) next = std::async(std::launch::async, resample, size_t(0));
+
+  auto t0 = std::chrono::steady_clock::now();
+  for (size_t k = 0; k < tiles.size(); ++k) {
+    const auto [phase, at, n] = tiles[k];
+    next.get();  // the tile's texels (rethrows the source's error)
+    if (cancelled && cancelled()) throw CancelledError("encoding cancelled in phase " + std::to_string(phase));
+    if (k + 1 < tiles.size()) next = std::async(std::launch::async, resample, k + 1);
+    const float* texels = buffers[k % 2].data();
+    if (at == bounds[phase - 1]) {
+      t0 = std::chrono::steady_clock::now();
+      if (phase == 2) encoder.set_thresholds(thresholds.relaxed(schedule.relax_factor));
+    }
+    auto store = [&](size_t i, const P6Entry& e) {
+      const uint32_t id = order[at + i];
+      result.p6_index[id] = int32_t(e.index);
+      result.p6_scale[id] = e.scale;
+      result.dissimilarity[id] = float(e.dissimilarity);
+    };
+    if (phase < 3) {
+      for (size_t i = 0; i < n; ++i) store(i, encoder.encode_growing(texels + i * 3 * samples));
+    } else {
+      if (!frozen)
+        frozen = std::make_unique<FrozenSearch>(
+            encoder, schedule.search_path(encoder.codebooks().grid, encoder.settings()), schedule.threads);
+      std::vector<P6Entry> entries(n);
+      frozen->encode(texels, n, entries.data());
+      for (size_t i = 0; i < n; ++i) store(i, entries[i]);
+    }
+    if (progress) progress({phase, at + n - bounds[phase - 1], bounds[phase] - bounds[phase - 1], CodebookSizes::of(books)});
+    if (at + n == bounds[phase]) {
+      result.report.sizes[phase - 1] = CodebookSizes::of(books);
+      result.report.seconds[phase - 1] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    }
+  }
+  for (int phase = 1; phase <= 3; ++phase) {
+    result.report.texels[phase - 1] = bounds[phase] - bounds[phase - 1];
+    if (bounds[phase] == bounds[phase - 1]) result.report.sizes[phase - 1] = CodebookSizes::of(books);
+  }
+  result.report.encoder = encoder.stats();
+  if (frozen) {
+    result.report.search = frozen->path();
+    result.report.search_stats = frozen->stats();
+  }
+  return result;
+}
+
+}  // namespace btfvq

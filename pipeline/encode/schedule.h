@@ -1,0 +1,81 @@
+#pragma once
+// Three-phase code-book generation (paper Sec. 5.1.1; docs/encoder.md):
+//   phase 1: grow the code-books on the first ~1% of the texels in 2D Halton order, with the
+//            configured thresholds;
+//   phase 2: relax the thresholds (dissimilarity x 2.5) and grow them on the next ~4%;
+//   phase 3: freeze the code-books and find, for every remaining texel, the best P4 entry and scale.
+// Texels come from a TexelSource in tiles, so memory stays bounded by one tile.
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "pipeline/codebook.h"
+#include "pipeline/util/config.h"
+#include "pipeline/encode/encoder.h"
+#include "pipeline/encode/frozen_search.h"
+
+namespace btfvq {
+
+struct ScheduleSettings {
+  double phase1_fraction = 0.01;
+  double phase2_fraction = 0.04;
+  double relax_factor = 2.5;
+  int tile_texels = 256;
+  int threads = 2;  // phase 3 workers
+  // Phase 3 search: "auto" (the fastest: the batched kernel on OpenCL, else pruned), "pruned",
+  // "batched" (OpenCL, or its C++ reference without OpenCL), "batched-reference" (the kernel's C++
+  // reference even on OpenCL: for comparisons)
+  // (on the compute device's path: OpenCL or its C++ reference). All give the same entries.
+  std::string search = "auto";
+  SearchPath search_path(const AngularGrid& grid, const SimilaritySettings& similarity) const;
+
+  // Reads the "schedule" section.
+  static ScheduleSettings from(const ParameterDictionary& d);
+};
+
+// Resamples the given texels (ids y * width + x) into out (n x 3 x grid.samples() floats).
+using TexelSource = std::function<void(const uint32_t* texel_ids, size_t n, float* out)>;
+
+struct CodebookSizes {
+  size_t p1 = 0, c = 0, i1 = 0, i2 = 0, p2 = 0, m = 0, p3 = 0, p4 = 0;
+  static CodebookSizes of(const Codebooks& k);
+};
+
+struct ScheduleProgress {
+  int phase = 1;  // 1, 2 or 3
+  size_t done = 0, total = 0;  // texels of this phase
+  CodebookSizes sizes;
+};
+
+struct ScheduleReport {
+  size_t texels[3] = {0, 0, 0};
+  CodebookSizes sizes[3];   // after each phase
+  double seconds[3] = {0, 0, 0};
+  EncoderStats encoder;     // phases 1 and 2
+  SearchPath search = SearchPath::Pruned;  // phase 3
+  SearchStats search_stats;
+};
+
+struct ScheduleResult {
+  std::vector<int32_t> p6_index;  // height x width, row-major
+  std::vector<float> p6_scale;
+  std::vector<float> dissimilarity;  // per texel, as the encoder measured it
+  ScheduleReport report;
+};
+
+// Every texel of a width x height grid exactly once, in the order of the 2D Halton sequence
+// (bases 2 and 3); texels the sequence has not reached after 16 x W x H points follow in scan order.
+std::vector<uint32_t> halton_order(int width, int height);
+
+// Number of texels in phases 1 and 2 (at least one in phase 1).
+void phase_sizes(size_t texels, const ScheduleSettings& s, size_t* phase1, size_t* phase2);
+
+ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height, const TexelSource& source,
+                            const Thresholds& thresholds, const SimilaritySettings& similarity,
+                            const ScheduleSettings& schedule,
+                            const std::function<void(const ScheduleProgress&)>& progress = {},
+                            const std::function<bool()>& cancelled = {});
+
+}  // namespace btfvq
