@@ -107,8 +107,8 @@ int main(int argc, char** argv) {
     const auto& s = r.report.sizes[p];
     std::printf("phase %d: %zu texels in %.2f s (%.1f texels/s); sizes P1 %zu C %zu I1 %zu I2 %zu P2 %zu M %zu P3 %zu P4 %zu\n",
                 p + 1, r.report.texels[p], r.report.seconds[p],
-                r.report.seconds[p] > 0 ? double(r.report.texels[p]) / r.report.seconds[p] : 0.0, s.p1, s.c, s.i1, s.i2,
-                s.p2, s.m, s.p3, s.p4);
+                r.report.seconds[p] > 0 ? double(r.report.texels[p]) / r.report.seconds[p] : 0.0, s[CodebookId::P1], s[CodebookId::C], s[CodebookId::I1], s[CodebookId::I2],
+                s[CodebookId::P2], s[CodebookId::M], s[CodebookId::P3], s[CodebookId::P4]);
   }
   double mean = 0, worst = 0;
   for (float d : r.dissimilarity) {

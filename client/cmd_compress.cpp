@@ -50,7 +50,7 @@ int run_compress(const Args& a) {
       if (bar)
         bar->update(p.texels_total ? double(p.texels_done) / double(p.texels_total) : 0.0,
                     std::to_string(p.texels_done) + "/" + std::to_string(p.texels_total) + " texels, P4 " +
-                        std::to_string(p.sizes.p4) + ", P1 " + std::to_string(p.sizes.p1));
+                        std::to_string(p.sizes[CodebookId::P4]) + ", P1 " + std::to_string(p.sizes[CodebookId::P1]));
     };
     const CompressReport r = compress_material(db, sample, name, options);
     if (bar) bar->finish();

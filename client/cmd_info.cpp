@@ -46,7 +46,7 @@ void print_database_info(std::ostream& out, const std::string& path, const Datab
   if (h.file_size > 0 && raw > 0) out << "ratio:      1:" << double(raw) / double(h.file_size) << "\n";
   out << "code-books: (entries, bytes in the file)\n";
   for (int i = 0; i < kCodebookCount; ++i)
-    out << "  " << codebook_name(CodebookId(i)) << "\t" << info.codebook_rows[i] << "\t"
+    out << "  " << codebook_name(CodebookId(i)) << "\t" << info.codebook_rows[CodebookId(i)] << "\t"
         << with_thousands(info.codebook_bytes[i]) << "\n";
   out << "materials:  " << info.materials.size() << "\n";
   for (const auto& m : info.materials)

@@ -1,5 +1,7 @@
 #include "pipeline/codebook.h"
 
+#include <nlohmann/json.hpp>
+
 #include <btfvq/error.h>
 
 namespace btfvq {
@@ -17,6 +19,34 @@ Codebooks::Codebooks(const AngularGrid& g)
       p3_scale(size_t(g.n_theta_v)),
       p4_index(size_t(g.n_phi_v)),
       p4_scale(size_t(g.n_phi_v)) {}
+
+const char* codebook_name(CodebookId id) {
+  static const char* names[kCodebookCount] = {"P1", "C", "I1", "I2", "P2", "M", "P3", "P4"};
+  const auto i = size_t(id);
+  return i < size_t(kCodebookCount) ? names[i] : "?";
+}
+
+CodebookSizes CodebookSizes::of(const Codebooks& k) {
+  CodebookSizes z;
+  z[CodebookId::P1] = k.p1.rows();
+  z[CodebookId::C] = k.c.rows();
+  z[CodebookId::I1] = k.i1.rows();
+  z[CodebookId::I2] = k.i2.rows();
+  z[CodebookId::P2] = k.p2_index.rows();
+  z[CodebookId::M] = k.m.rows();
+  z[CodebookId::P3] = k.p3_index.rows();
+  z[CodebookId::P4] = k.p4_index.rows();
+  return z;
+}
+
+void to_json(nlohmann::json& j, const CodebookSizes& z) {
+  j = nlohmann::json::object();
+  for (CodebookId id : kAllCodebooks) j[codebook_name(id)] = z[id];
+}
+
+void from_json(const nlohmann::json& j, CodebookSizes& z) {
+  for (CodebookId id : kAllCodebooks) z[id] = j.is_object() ? j.value(codebook_name(id), size_t(0)) : 0;
+}
 
 const Material* Database::find(const std::string& name) const {
   for (const auto& m : materials)

@@ -9,10 +9,13 @@
 // All indices are 0-based. Every code-book but P6 is shared by all materials of a database and only
 // ever grows (append-only): an entry keeps its index forever, which is what lets existing material
 // sections and old database versions stay byte-identical.
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <string>
 #include <vector>
+
+#include <nlohmann/json_fwd.hpp>
 
 #include "pipeline/btf.h"
 #include "pipeline/parametrization.h"
@@ -45,6 +48,31 @@ class Table {
   size_t cols_ = 0;
   std::vector<T> data_;
 };
+
+// The shared code-books, in the order their chunks appear within a database version (docs/format.md);
+// the value is the code-book's id in the file.
+enum class CodebookId : uint16_t { P1 = 0, C = 1, I1 = 2, I2 = 3, P2 = 4, M = 5, P3 = 6, P4 = 7 };
+inline constexpr int kCodebookCount = 8;
+inline constexpr CodebookId kAllCodebooks[kCodebookCount] = {CodebookId::P1, CodebookId::C,  CodebookId::I1,
+                                                             CodebookId::I2, CodebookId::P2, CodebookId::M,
+                                                             CodebookId::P3, CodebookId::P4};
+// "P1", "C", ... "P4" (the one name table: reports, JSON keys, file listings).
+const char* codebook_name(CodebookId id);
+
+struct Codebooks;
+
+// Rows per code-book, indexed by CodebookId: sizes in progress reports, versions and file listings.
+struct CodebookSizes {
+  std::array<size_t, kCodebookCount> rows{};
+
+  size_t& operator[](CodebookId id) { return rows[size_t(id)]; }
+  size_t operator[](CodebookId id) const { return rows[size_t(id)]; }
+  bool operator==(const CodebookSizes& o) const = default;
+  static CodebookSizes of(const Codebooks& k);
+};
+// As a JSON object {"P1": rows, ..., "P4": rows}; from_json reads what to_json wrote (missing names are 0).
+void to_json(nlohmann::json& j, const CodebookSizes& z);
+void from_json(const nlohmann::json& j, CodebookSizes& z);
 
 // The shared code-books of one database.
 struct Codebooks {
@@ -95,7 +123,7 @@ struct ValueCoding {
 // values were quantized, so that rewriting the database reproduces that version's sections byte for
 // byte (append-only versions, delta downloads).
 struct VersionMark {
-  size_t p1 = 0, c = 0, i1 = 0, i2 = 0, p2 = 0, m = 0, p3 = 0, p4 = 0;
+  CodebookSizes rows;
   size_t materials = 0;
   ValueCoding p1_values, c_values, p2_scale, p3_scale, p4_scale, p6_scale;
   uint8_t zstd_level = 0;  // 0: sections stored raw packed; else zstd at this level where it is smaller

@@ -11,6 +11,8 @@
 #include <string>
 #include <vector>
 
+#include "pipeline/codebook.h"
+
 namespace btfvq::server {
 
 // One material of a job, with its source already validated and resolved by the service.
@@ -38,7 +40,7 @@ struct JobProgress {
   double fraction = 0;        // of the whole job, 0..1
   uint64_t texels_done = 0;   // within the current stage
   uint64_t texels_total = 0;
-  std::array<uint64_t, 8> codebook_sizes{};  // P1, C, I1, I2, P2, M, P3, P4
+  CodebookSizes codebook_sizes;
   std::string material;       // the material being compressed
 };
 

@@ -78,8 +78,7 @@ Executor make_pipeline_executor() {
       options.cancelled = ctx.cancelled;
       options.progress = [&](const CompressProgress& p) {
         JobProgress jp{p.stage, p.phase, 0, p.texels_done, p.texels_total, {}, m.name};
-        const CodebookSizes& z = p.sizes;
-        jp.codebook_sizes = {z.p1, z.c, z.i1, z.i2, z.p2, z.m, z.p3, z.p4};
+        jp.codebook_sizes = p.sizes;
         report(jp, kLoadShare + (1 - kLoadShare) * p.fraction);
       };
       const CompressReport r = compress_material(db, sample, m.name, options);

@@ -21,7 +21,6 @@ using nlohmann::json;
 
 namespace {
 
-constexpr const char* kCodebookNames[8] = {"P1", "C", "I1", "I2", "P2", "M", "P3", "P4"};
 constexpr size_t kMaxMaterialsPerJob = 256;
 constexpr int kMinSyntheticSize = 4, kMaxSyntheticSize = 2048;  // the generator accepts up to 2048
 constexpr int64_t kMaxSeed = (int64_t(1) << 53);
@@ -105,11 +104,6 @@ int64_t require_integer(const json& obj, const std::string& key, const std::stri
   return n;
 }
 
-json codebook_json(const std::array<uint64_t, 8>& sizes) {
-  json out = json::object();
-  for (size_t i = 0; i < 8; ++i) out[kCodebookNames[i]] = sizes[i];
-  return out;
-}
 
 json version_json(const VersionRecord& v) {
   uint64_t raw = 0;
@@ -464,7 +458,7 @@ json Service::job_json(const JobRecord& job) {
           {"material", progress.value("material", "")},
           {"texels_done", progress.value("texels_done", uint64_t(0))},
           {"texels_total", progress.value("texels_total", uint64_t(0))},
-          {"codebook_sizes", progress.value("codebook_sizes", codebook_json({}))},
+          {"codebook_sizes", progress.value("codebook_sizes", json(CodebookSizes{}))},
           {"created", job.created},
           {"started", job.started > 0 ? json(job.started) : json()},
           {"finished", job.finished > 0 ? json(job.finished) : json()},
@@ -659,7 +653,7 @@ void Service::on_progress(const std::string& id, const JobProgress& p) {
                    {"fraction", std::isfinite(p.fraction) ? std::clamp(p.fraction, 0.0, 1.0) : 0.0},
                    {"texels_done", p.texels_done},
                    {"texels_total", p.texels_total},
-                   {"codebook_sizes", codebook_json(p.codebook_sizes)},
+                   {"codebook_sizes", p.codebook_sizes},
                    {"material", p.material}};
   // The store gets a copy now and then, so that a restarted server shows where a job was.
   if (stage_changed || now - live.last_persisted > 1.0) {

@@ -160,7 +160,7 @@ struct FakeCompressor {
             p.fraction = (double(i) + (phase - 1 + k / 3.0) / 3.0) / double(spec.materials.size());
             p.texels_done = uint64_t(k * 100);
             p.texels_total = 300;
-            p.codebook_sizes = {uint64_t(10 * phase), 2, 3, 4, 5, 6, 7, uint64_t(8 * phase)};
+            p.codebook_sizes.rows = {size_t(10 * phase), 2, 3, 4, 5, 6, 7, size_t(8 * phase)};
             p.material = m.name;
             ctx.progress(p);
             std::this_thread::sleep_for(step);

@@ -229,8 +229,8 @@ TEST_CASE("write then read equals the quantized in-memory database; writing is d
   CHECK(info.materials[1].name == "mat1");
   CHECK(info.materials[1].width == 16);
   CHECK(info.materials[1].height == 12);
-  CHECK(info.codebook_rows[size_t(CodebookId::P2)] == 300);
-  CHECK(info.codebook_rows[size_t(CodebookId::M)] == 320);
+  CHECK(info.codebook_rows[CodebookId::P2] == 300);
+  CHECK(info.codebook_rows[CodebookId::M] == 320);
 }
 
 TEST_CASE("lossless settings store an imported database bit for bit") {

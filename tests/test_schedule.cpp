@@ -67,10 +67,10 @@ TEST_CASE("three phases: growth only in phases 1 and 2, guarantee for grown texe
   CHECK(r.report.texels[0] == 8);
   CHECK(r.report.texels[1] == 15);
   CHECK(r.report.texels[2] == 256 - 23);
-  CHECK(r.report.sizes[1].p4 >= r.report.sizes[0].p4);
-  CHECK(r.report.sizes[2].p4 == r.report.sizes[1].p4);
-  CHECK(r.report.sizes[2].p1 == r.report.sizes[1].p1);
-  CHECK(r.report.sizes[2].p4 == k.p4_index.rows());
+  CHECK(r.report.sizes[1][CodebookId::P4] >= r.report.sizes[0][CodebookId::P4]);
+  CHECK(r.report.sizes[2][CodebookId::P4] == r.report.sizes[1][CodebookId::P4]);
+  CHECK(r.report.sizes[2][CodebookId::P1] == r.report.sizes[1][CodebookId::P1]);
+  CHECK(r.report.sizes[2][CodebookId::P4] == k.p4_index.rows());
   Material m;
   m.name = "synthetic";
   m.width = m.height = 16;

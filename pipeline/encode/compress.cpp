@@ -36,10 +36,6 @@ PipelineSettings read_settings(const ParameterDictionary& config) {
   return s;
 }
 
-nlohmann::json sizes_json(const CodebookSizes& z) {
-  return {{"P1", z.p1}, {"C", z.c}, {"I1", z.i1}, {"I2", z.i2}, {"P2", z.p2}, {"M", z.m}, {"P3", z.p3}, {"P4", z.p4}};
-}
-
 bool has_content(const Database& db) {
   return !db.materials.empty() || db.codebooks.p1.rows() > 0 || db.codebooks.p4_index.rows() > 0;
 }
@@ -121,7 +117,7 @@ CompressReport compress_material(Database& db, const MeasuredSample& sample, con
   nlohmann::json phases = nlohmann::json::array();
   for (int p = 0; p < 3; ++p)
     phases.push_back({{"phase", p + 1}, {"texels", r.texels[p]}, {"seconds", r.seconds[p]},
-                      {"codebook_sizes", sizes_json(r.sizes[p])}});
+                      {"codebook_sizes", r.sizes[p]}});
   double mean_dissimilarity = 0, worst = 0;
   for (float d : result.dissimilarity) {
     mean_dissimilarity += d;
@@ -151,7 +147,7 @@ CompressReport compress_material(Database& db, const MeasuredSample& sample, con
               {"encoder", {{"comparisons", r.encoder.comparisons},
                            {"pruned", r.encoder.pruned},
                            {"fallbacks", r.encoder.fallbacks}}},
-              {"codebook_sizes", sizes_json(CodebookSizes::of(db.codebooks))}};
+              {"codebook_sizes", CodebookSizes::of(db.codebooks)}};
   report("done", 0, sample.texel_count(), sample.texel_count(), 1.0);
   return out;
 }

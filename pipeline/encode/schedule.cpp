@@ -35,11 +35,6 @@ SearchPath ScheduleSettings::search_path(const AngularGrid& grid, const Similari
   return FrozenSearch::preferred(grid, similarity);
 }
 
-CodebookSizes CodebookSizes::of(const Codebooks& k) {
-  return {k.p1.rows(), k.c.rows(), k.i1.rows(), k.i2.rows(), k.p2_index.rows(), k.m.rows(), k.p3_index.rows(),
-          k.p4_index.rows()};
-}
-
 namespace {
 
 double radical_inverse(uint64_t i, uint32_t base) {

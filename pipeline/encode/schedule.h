@@ -38,11 +38,6 @@ struct ScheduleSettings {
 // Resamples the given texels (ids y * width + x) into out (n x 3 x grid.samples() floats).
 using TexelSource = std::function<void(const uint32_t* texel_ids, size_t n, float* out)>;
 
-struct CodebookSizes {
-  size_t p1 = 0, c = 0, i1 = 0, i2 = 0, p2 = 0, m = 0, p3 = 0, p4 = 0;
-  static CodebookSizes of(const Codebooks& k);
-};
-
 struct ScheduleProgress {
   int phase = 1;  // 1, 2 or 3
   size_t done = 0, total = 0;  // texels of this phase

@@ -1,9 +1,5 @@
 #include "pipeline/format/database.h"
 
-#include <fcntl.h>
-#include <unistd.h>
-
-#include <atomic>
 #include <cerrno>
 #include <cstring>
 #include <filesystem>
@@ -15,6 +11,7 @@
 #include <btfvq/error.h>
 #include "pipeline/format/packing.h"
 #include "pipeline/format/section_coding.h"
+#include "pipeline/util/atomic_file.h"
 
 namespace btfvq {
 
@@ -30,24 +27,6 @@ constexpr uint64_t kZstdSlack = 4096;
 constexpr size_t kEntryFixedBytes = 44;
 constexpr uint16_t kNoCodebook = 0xFFFF;
 constexpr int kMaxGridCount = 4096;
-
-constexpr CodebookId kAllCodebooks[kCodebookCount] = {CodebookId::P1, CodebookId::C,  CodebookId::I1, CodebookId::I2,
-                                                      CodebookId::P2, CodebookId::M,  CodebookId::P3, CodebookId::P4};
-
-size_t& rows_in(VersionMark& v, CodebookId id) {
-  switch (id) {
-    case CodebookId::P1: return v.p1;
-    case CodebookId::C: return v.c;
-    case CodebookId::I1: return v.i1;
-    case CodebookId::I2: return v.i2;
-    case CodebookId::P2: return v.p2;
-    case CodebookId::M: return v.m;
-    case CodebookId::P3: return v.p3;
-    case CodebookId::P4: return v.p4;
-  }
-  return v.p1;
-}
-size_t rows_in(const VersionMark& v, CodebookId id) { return rows_in(const_cast<VersionMark&>(v), id); }
 
 // The value codings of a version, in the order they are stored in a version record.
 ValueCoding* codings(VersionMark& v, int k) {
@@ -88,7 +67,7 @@ size_t table_rows(Codebooks& k, CodebookId id) {
 
 VersionMark current_sizes(Database& db) {
   VersionMark v;
-  for (CodebookId id : kAllCodebooks) rows_in(v, id) = table_rows(db.codebooks, id);
+  for (CodebookId id : kAllCodebooks) v.rows[id] = table_rows(db.codebooks, id);
   v.materials = db.materials.size();
   return v;
 }
@@ -129,7 +108,7 @@ void check_writable(Database& db) {
   for (size_t v = 0; v < db.versions.size(); ++v) {
     const VersionMark& mark = db.versions[v];
     for (CodebookId id : kAllCodebooks)
-      if (rows_in(mark, id) < rows_in(prev, id) || rows_in(mark, id) > rows_in(now, id))
+      if (mark.rows[id] < prev.rows[id] || mark.rows[id] > now.rows[id])
         throw InputError("version " + std::to_string(v + 1) + " mark of code-book " + codebook_name(id) +
                          " is inconsistent with the code-book");
     if (mark.materials < prev.materials || mark.materials > now.materials)
@@ -149,7 +128,7 @@ bool has_unpublished(Database& db) {
   const VersionMark& last = last_mark(db);
   if (db.versions.empty()) return true;
   for (CodebookId id : kAllCodebooks)
-    if (rows_in(now, id) != rows_in(last, id)) return true;
+    if (now.rows[id] != last.rows[id]) return true;
   return now.materials != last.materials;
 }
 
@@ -180,7 +159,7 @@ std::vector<uint32_t> gather(const Field& f, size_t r0, size_t r1) {
 
 std::vector<uint8_t> encode_chunk(Codebooks& k, CodebookId id, uint32_t version, const VersionMark& prev,
                                   const VersionMark& mark) {
-  const size_t r0 = rows_in(prev, id), r1 = rows_in(mark, id);
+  const size_t r0 = prev.rows[id], r1 = mark.rows[id];
   const std::string what = section_name(id, version);
   std::vector<uint8_t> out;
   ByteWriter w(out);
@@ -192,7 +171,7 @@ std::vector<uint8_t> encode_chunk(Codebooks& k, CodebookId id, uint32_t version,
   for (const Field& f : fields_of(k, id)) {
     if (f.index) {
       const auto v = gather(f, r0, r1);
-      const size_t limit = rows_in(mark, f.target);
+      const size_t limit = mark.rows[f.target];
       for (size_t i = 0; i < v.size(); ++i)
         if (v[i] >= limit)
           throw InputError(what + ": index " + std::to_string(v[i]) + " in row " +
@@ -216,7 +195,7 @@ std::vector<uint8_t> encode_material(const Material& m, uint32_t version, const 
   w.u32(uint32_t(m.height));
   w.u8(m.dynamic == Dynamic::HDR ? 1 : 0);
   w.u64(m.raw_bytes);
-  const uint64_t limit = uint64_t(mark.p4) + 1;
+  const uint64_t limit = uint64_t(mark.rows[CodebookId::P4]) + 1;
   std::vector<uint32_t> shifted(m.p6_index.size());
   for (size_t i = 0; i < shifted.size(); ++i) {
     if (uint64_t(int64_t(m.p6_index[i]) + 1) >= limit)
@@ -243,7 +222,7 @@ std::vector<Expected> expected_sections(const std::vector<VersionMark>& versions
   VersionMark prev;
   for (size_t v = 0; v < versions.size(); ++v) {
     for (CodebookId id : kAllCodebooks)
-      if (rows_in(versions[v], id) > rows_in(prev, id)) e.push_back({SectionKind::Codebook, uint32_t(v + 1), id, 0});
+      if (versions[v].rows[id] > prev.rows[id]) e.push_back({SectionKind::Codebook, uint32_t(v + 1), id, 0});
     for (size_t m = prev.materials; m < versions[v].materials; ++m)
       e.push_back({SectionKind::Material, uint32_t(v + 1), CodebookId::P1, m});
     prev = versions[v];
@@ -260,14 +239,14 @@ std::string describe(const SectionEntry& s, size_t i) {
 
 void decode_chunk(ByteReader& r, Codebooks& k, CodebookId id, uint32_t version, const VersionMark& prev,
                   const VersionMark& mark) {
-  const size_t r0 = rows_in(prev, id), r1 = rows_in(mark, id);
+  const size_t r0 = prev.rows[id], r1 = mark.rows[id];
   if (r.u16() != uint16_t(id) || r.u16() != 0 || r.u32() != version) r.fail("code-book id or version differs from the table");
   if (r.u32() != r0 || r.u32() != r1 - r0)
     r.fail("rows differ from the version record (expected rows " + std::to_string(r0) + ".." + std::to_string(r1) + ")");
   for (const Field& f : fields_of(k, id)) {
     if (f.index) {
       const size_t per_row = f.column < 0 ? f.index->cols() : 1;
-      const size_t limit = rows_in(mark, f.target);
+      const size_t limit = mark.rows[f.target];
       const auto v = read_indices(r, (r1 - r0) * per_row, index_bits(limit), limit,
                                   std::string("indices into ") + codebook_name(f.target));
       if (f.index->rows() < r1) f.index->resize_rows(r1);
@@ -297,7 +276,7 @@ Material decode_material(ByteReader& r, const std::string& table_name, const Ver
   m.dynamic = dyn ? Dynamic::HDR : Dynamic::LDR;
   m.raw_bytes = r.u64();
   const uint64_t n = uint64_t(w) * h;
-  const uint64_t limit = uint64_t(mark.p4) + 1;
+  const uint64_t limit = uint64_t(mark.rows[CodebookId::P4]) + 1;
   const auto idx = read_indices(r, n, index_bits(limit), limit, "P6 indices");
   m.p6_index.resize(n);
   for (size_t i = 0; i < n; ++i) {
@@ -408,12 +387,6 @@ std::vector<uint8_t> read_file(const std::string& path) {
 
 }  // namespace
 
-const char* codebook_name(CodebookId id) {
-  static const char* names[kCodebookCount] = {"P1", "C", "I1", "I2", "P2", "M", "P3", "P4"};
-  const auto i = size_t(id);
-  return i < size_t(kCodebookCount) ? names[i] : "?";
-}
-
 PackSettings PackSettings::lossless() {
   PackSettings s;
   const ValueCoding raw{ValueCoding::Float32, 32};
@@ -428,7 +401,7 @@ void quantize_new_rows(Database& db, const PackSettings& settings) {
   for (CodebookId id : kAllCodebooks)
     for (const Field& f : fields_of(db.codebooks, id))
       if (f.values) {
-        const size_t r1 = f.values->rows(), r0 = std::min(rows_in(prev, id), r1);
+        const size_t r1 = f.values->rows(), r0 = std::min(prev.rows[id], r1);
         quantize_values(f.values->row(r0), (r1 - r0) * f.values->cols(), codings.*f.coding, section_name(id, 0));
       }
   for (size_t i = std::min(prev.materials, now.materials); i < now.materials; ++i) {
@@ -443,7 +416,7 @@ void publish_version(Database& db, const PackSettings& settings) {
   quantize_new_rows(db, settings);
   VersionMark mark = next_codings(db, settings);
   const VersionMark now = current_sizes(db);
-  for (CodebookId id : kAllCodebooks) rows_in(mark, id) = rows_in(now, id);
+  for (CodebookId id : kAllCodebooks) mark.rows[id] = now.rows[id];
   mark.materials = now.materials;
   db.versions.push_back(mark);
 }
@@ -460,7 +433,7 @@ std::vector<uint8_t> serialize_database(const Database& input, const PackSetting
     const VersionMark& mark = db.versions[v];
     const uint32_t version = uint32_t(v + 1);
     for (CodebookId id : kAllCodebooks)
-      if (rows_in(mark, id) > rows_in(prev, id)) {
+      if (mark.rows[id] > prev.rows[id]) {
         SectionEntry e;
         e.kind = SectionKind::Codebook;
         e.version = version;
@@ -525,7 +498,7 @@ std::vector<uint8_t> serialize_database(const Database& input, const PackSetting
   w.u64(offset);
   w.u64(0);  // reserved
   for (VersionMark& mark : db.versions) {
-    for (CodebookId id : kAllCodebooks) w.u32(uint32_t(rows_in(mark, id)));
+    for (CodebookId id : kAllCodebooks) w.u32(uint32_t(mark.rows[id]));
     w.u32(uint32_t(mark.materials));
     for (int k = 0; k < 6; ++k) {
       w.u8(codings(mark, k)->mode);
@@ -611,7 +584,7 @@ DatabaseHead parse_head(const uint8_t* data, size_t n, const std::string& where)
   VersionMark prev;
   for (uint32_t v = 0; v < h.version; ++v) {
     VersionMark mark;
-    for (CodebookId id : kAllCodebooks) rows_in(mark, id) = r.u32();
+    for (CodebookId id : kAllCodebooks) mark.rows[id] = r.u32();
     mark.materials = r.u32();
     for (int k = 0; k < 6; ++k) {
       const uint8_t mode = r.u8(), bits = r.u8();
@@ -625,7 +598,7 @@ DatabaseHead parse_head(const uint8_t* data, size_t n, const std::string& where)
     if (mark.range_coding > 1) r.fail("version " + std::to_string(v + 1) + " has an unknown range coding flag");
     if (r.u16() != 0) r.fail("version " + std::to_string(v + 1) + ": reserved bytes are not zero");
     for (CodebookId id : kAllCodebooks)
-      if (rows_in(mark, id) < rows_in(prev, id))
+      if (mark.rows[id] < prev.rows[id])
         r.fail("version " + std::to_string(v + 1) + " shrinks code-book " + codebook_name(id));
     if (mark.materials < prev.materials) r.fail("version " + std::to_string(v + 1) + " drops materials");
     h.versions.push_back(mark);
@@ -636,7 +609,7 @@ DatabaseHead parse_head(const uint8_t* data, size_t n, const std::string& where)
   uint64_t implied = 0;
   prev = VersionMark();
   for (const VersionMark& mark : h.versions) {
-    for (CodebookId id : kAllCodebooks) implied += rows_in(mark, id) > rows_in(prev, id) ? 1 : 0;
+    for (CodebookId id : kAllCodebooks) implied += mark.rows[id] > prev.rows[id] ? 1 : 0;
     implied += mark.materials - prev.materials;
     prev = mark;
   }
@@ -748,34 +721,7 @@ void write_database(const Database& db, const std::string& path, const PackSetti
       previous.clear();
     }
   }
-  const std::vector<uint8_t> bytes = serialize_database(db, settings, previous.empty() ? nullptr : &previous);
-  static std::atomic<unsigned> counter{0};
-  const std::string tmp = path + ".tmp-" + std::to_string(::getpid()) + "-" + std::to_string(counter++);
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) throw InputError("cannot write database '" + path + "': " + std::strerror(errno));
-  size_t done = 0;
-  bool ok = true;
-  while (ok && done < bytes.size()) {
-    const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
-    if (n < 0 && errno == EINTR) continue;
-    ok = n > 0;
-    if (ok) done += size_t(n);
-  }
-  ok = ok && ::fsync(fd) == 0;
-  const int err = errno;
-  ok = (::close(fd) == 0) && ok;
-  if (!ok || std::rename(tmp.c_str(), path.c_str()) != 0) {
-    const int e = ok ? errno : err;
-    ::unlink(tmp.c_str());
-    throw InputError("cannot write database '" + path + "': " + std::strerror(e));
-  }
-  // Make the rename itself durable.
-  const auto dir = std::filesystem::absolute(path).parent_path();
-  const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (dfd >= 0) {
-    ::fsync(dfd);
-    ::close(dfd);
-  }
+  write_file_atomically(path, serialize_database(db, settings, previous.empty() ? nullptr : &previous));
 }
 
 Database read_database(const std::string& path) { return parse_database(read_file(path), path); }
@@ -795,7 +741,7 @@ DatabaseInfo inspect_database(const std::string& path) {
     info.materials.push_back({mat.name, mat.width, mat.height, mat.dynamic, mat.raw_bytes, s.version, s.length});
   }
   if (!db.versions.empty())
-    for (CodebookId id : kAllCodebooks) info.codebook_rows[size_t(id)] = rows_in(db.versions.back(), id);
+    info.codebook_rows = db.versions.back().rows;
   return info;
 }
 

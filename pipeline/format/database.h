@@ -37,11 +37,6 @@ struct PackSettings {
   static PackSettings lossless();
 };
 
-// Code-books in the order their chunks appear within a version (docs/format.md).
-enum class CodebookId : uint16_t { P1 = 0, C = 1, I1 = 2, I2 = 3, P2 = 4, M = 5, P3 = 6, P4 = 7 };
-inline constexpr int kCodebookCount = 8;
-const char* codebook_name(CodebookId id);
-
 enum class SectionKind : uint16_t { Codebook = 1, Material = 2 };
 
 // One row of the section table.
@@ -93,8 +88,7 @@ struct MaterialInfo {
 struct DatabaseInfo {
   DatabaseHead head;
   std::vector<MaterialInfo> materials;
-  // Code-book sizes (rows) at the latest version, indexed by CodebookId.
-  uint64_t codebook_rows[kCodebookCount] = {};
+  CodebookSizes codebook_rows;  // at the latest version
   uint64_t codebook_bytes[kCodebookCount] = {};  // their bytes in the file (all versions)
 };
 

@@ -1,16 +1,15 @@
 #include "pipeline/io/btfbase.h"
 
 #include <algorithm>
-#include <atomic>
 #include <charconv>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <limits>
 #include <sstream>
-#include <unistd.h>
 
 #include <btfvq/error.h>
+#include "pipeline/util/atomic_file.h"
 
 namespace btfvq {
 
@@ -520,34 +519,17 @@ void export_btfbase(const Database& db, const std::string& dir_name) {
   check_exportable(db);
   fs::path dir = fs::absolute(fs::path(dir_name)).lexically_normal();
   if (dir.filename().empty()) dir = dir.parent_path();
-  const fs::path parent = dir.parent_path();
-  const std::string base = dir.filename().string();
-  static std::atomic<unsigned> counter{0};
-  const std::string tag = std::to_string(::getpid()) + "-" + std::to_string(counter++);
-  const fs::path tmp = parent / ("." + base + ".tmp-" + tag);
-  const fs::path old = parent / ("." + base + ".old-" + tag);
   std::error_code ec;
-  fs::create_directories(parent, ec);
-  if (!fs::create_directory(tmp, ec) || ec)
+  fs::create_directories(dir.parent_path(), ec);
+  AtomicFile out(dir.string());
+  if (!fs::create_directory(out.temp_path(), ec) || ec)
     throw InputError("cannot create a directory next to '" + dir.string() + "': " + ec.message());
   try {
-    write_all(db, tmp, base);
-    const bool replace = fs::exists(dir);
-    if (replace) fs::rename(dir, old);
-    try {
-      fs::rename(tmp, dir);
-    } catch (...) {
-      if (replace) fs::rename(old, dir, ec);
-      throw;
-    }
-    if (replace) fs::remove_all(old, ec);
+    write_all(db, out.temp_path(), dir.filename().string());
   } catch (const fs::filesystem_error& e) {
-    fs::remove_all(tmp, ec);
     throw InputError("cannot write BTFBASE directory '" + dir.string() + "': " + e.what());
-  } catch (...) {
-    fs::remove_all(tmp, ec);
-    throw;
   }
+  out.commit();
 }
 
 }  // namespace btfvq

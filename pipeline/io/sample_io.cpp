@@ -22,6 +22,7 @@
 #include <thread>
 
 #include <btfvq/error.h>
+#include "pipeline/util/atomic_file.h"
 
 namespace btfvq {
 
@@ -671,16 +672,6 @@ void write_file(const fs::path& file, const Bytes& data) {
 }
 
 // Removes the temporary output unless the write completed.
-struct TemporaryOutput {
-  fs::path path;
-  bool keep = false;
-  ~TemporaryOutput() {
-    if (keep) return;
-    std::error_code ec;
-    fs::remove_all(path, ec);
-  }
-};
-
 // The inverse of scatter for a run of consecutive pairs: store[t][i] -> image i, texel t.
 template <class T>
 void gather(const T* __restrict store, size_t texel_stride, size_t count, T* __restrict batch, size_t image_stride,
@@ -816,15 +807,12 @@ void write_sample(const MeasuredSample& sample, const std::string& path, const W
   const fs::path parent = fs::path(dest).parent_path();
   if (!parent.empty() && !fs::is_directory(parent)) throw InputError("output directory " + parent.string() + " does not exist");
 
-  TemporaryOutput temp{dest + ".tmp-" + std::to_string(::getpid())};
-  fs::remove_all(temp.path, ec);
+  AtomicFile out(dest);
   if (sample.is_hdr())
-    write_images(sample, sample.hdr_data(), names, temp.path, zip, options);
+    write_images(sample, sample.hdr_data(), names, out.temp_path(), zip, options);
   else
-    write_images(sample, sample.ldr_data(), names, temp.path, zip, options);
-  fs::rename(temp.path, dest, ec);
-  if (ec) throw Error("io_error", "cannot rename " + temp.path.string() + " to " + dest + ": " + ec.message());
-  temp.keep = true;
+    write_images(sample, sample.ldr_data(), names, out.temp_path(), zip, options);
+  out.commit();
 }
 
 }  // namespace btfvq

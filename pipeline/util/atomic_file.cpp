@@ -1,0 +1,104 @@
+#include "pipeline/util/atomic_file.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
+
+#include <btfvq/error.h>
+
+namespace btfvq {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string reason(int err) { return std::strerror(err); }
+
+// fsync of one file or folder; returns errno or 0. A folder that cannot be opened for reading is
+// not an error (some file systems refuse): the rename is then as durable as they allow.
+int sync_one(const fs::path& p, bool folder) {
+  const int fd = ::open(p.c_str(), (folder ? O_RDONLY | O_DIRECTORY : O_RDONLY) | O_CLOEXEC);
+  if (fd < 0) return folder ? 0 : errno;
+  const int rc = ::fsync(fd) == 0 ? 0 : errno;
+  ::close(fd);
+  return (rc == EINVAL || rc == EROFS) ? 0 : rc;
+}
+
+int sync_tree(const fs::path& p) {
+  std::error_code ec;
+  if (!fs::is_directory(p, ec)) return sync_one(p, false);
+  for (const auto& e : fs::recursive_directory_iterator(p, ec))
+    if (int rc = sync_one(e.path(), e.is_directory()); rc) return rc;
+  return sync_one(p, true);
+}
+
+}  // namespace
+
+AtomicFile::AtomicFile(const std::string& target) : target_(target) {
+  static std::atomic<unsigned> counter{0};
+  fs::path t(target);
+  while (t.has_parent_path() && t.filename().empty()) t = t.parent_path();  // "dir/" -> "dir"
+  target_ = t.string();
+  const std::string tag = std::to_string(::getpid()) + "-" + std::to_string(counter++);
+  temp_ = (t.parent_path() / ("." + t.stem().string() + ".tmp-" + tag + t.extension().string())).string();
+}
+
+AtomicFile::~AtomicFile() {
+  if (committed_) return;
+  std::error_code ec;
+  fs::remove_all(temp_, ec);
+}
+
+void AtomicFile::commit() {
+  auto fail = [&](int err) {
+    std::error_code ec;
+    fs::remove_all(temp_, ec);
+    throw Error("io", "cannot write '" + target_ + "': " + reason(err));
+  };
+  if (int rc = sync_tree(temp_)) fail(rc);
+  std::error_code ec;
+  const fs::path target(target_);
+  if (fs::is_directory(fs::status(target, ec))) {
+    // rename(2) cannot replace a non-empty folder: move the old one aside first, put it back on failure.
+    const fs::path old = target.parent_path() / ("." + target.filename().string() + ".old-" +
+                                                 fs::path(temp_).filename().string());
+    if (::rename(target.c_str(), old.c_str()) != 0) fail(errno);
+    if (::rename(temp_.c_str(), target.c_str()) != 0) {
+      const int err = errno;
+      ::rename(old.c_str(), target.c_str());
+      fail(err);
+    }
+    fs::remove_all(old, ec);
+  } else if (::rename(temp_.c_str(), target.c_str()) != 0) {
+    fail(errno);
+  }
+  committed_ = true;
+  sync_one(fs::absolute(target).parent_path(), true);
+}
+
+void write_file_atomically(const std::string& path, const void* data, size_t size) {
+  AtomicFile file(path);
+  const int fd = ::open(file.temp_path().c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) throw Error("io", "cannot write '" + path + "': " + reason(errno));
+  const auto* p = static_cast<const uint8_t*>(data);
+  size_t done = 0;
+  int err = 0;
+  while (done < size) {
+    const ssize_t n = ::write(fd, p + done, size - done);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      err = n < 0 ? errno : EIO;
+      break;
+    }
+    done += size_t(n);
+  }
+  if (::close(fd) != 0 && !err) err = errno;
+  if (err) throw Error("io", "cannot write '" + path + "': " + reason(err));
+  file.commit();
+}
+
+}  // namespace btfvq

@@ -1,0 +1,90 @@
+// The one atomic-file writer (pipeline/util/atomic_file.h): a target holds its old content or the
+// new, never a part, and a failure leaves nothing behind.
+#include <doctest/doctest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include <btfvq/error.h>
+#include "pipeline/util/atomic_file.h"
+#include "support/test_paths.h"
+
+using namespace btfvq;
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+size_t entries(const fs::path& dir) {
+  size_t n = 0;
+  for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir)) ++n;
+  return n;
+}
+
+}  // namespace
+
+TEST_CASE("write_file_atomically creates and replaces a file and leaves no temporary") {
+  const fs::path dir = test::scratch_dir("atomic-file");
+  const fs::path target = dir / "db.btfdb";
+  write_file_atomically(target.string(), std::string("first"));
+  CHECK(slurp(target) == "first");
+  write_file_atomically(target.string(), std::string("second, longer"));
+  CHECK(slurp(target) == "second, longer");
+  CHECK(entries(dir) == 1);
+}
+
+TEST_CASE("the temporary sits beside the target, hidden, with the target's extension") {
+  const fs::path dir = test::scratch_dir("atomic-temp");
+  AtomicFile a((dir / "x.png").string()), b((dir / "x.png").string());
+  CHECK(fs::path(a.temp_path()).parent_path() == dir);
+  CHECK(fs::path(a.temp_path()).filename().string()[0] == '.');
+  CHECK(fs::path(a.temp_path()).extension() == ".png");
+  CHECK(a.temp_path() != b.temp_path());
+}
+
+TEST_CASE("an uncommitted AtomicFile removes its temporary and keeps the old content") {
+  const fs::path dir = test::scratch_dir("atomic-abandon");
+  const fs::path target = dir / "keep.txt";
+  write_file_atomically(target.string(), std::string("old"));
+  {
+    AtomicFile f(target.string());
+    std::ofstream(f.temp_path()) << "half";
+    CHECK(fs::exists(f.temp_path()));
+  }
+  CHECK(slurp(target) == "old");
+  CHECK(entries(dir) == 1);
+}
+
+TEST_CASE("a folder target is replaced as a whole") {
+  const fs::path dir = test::scratch_dir("atomic-folder");
+  const fs::path target = dir / "sample";
+  fs::create_directory(target);
+  std::ofstream(target / "old.txt") << "old";
+  AtomicFile f(target.string());
+  fs::create_directory(f.temp_path());
+  std::ofstream(fs::path(f.temp_path()) / "new.txt") << "new";
+  f.commit();
+  CHECK(slurp(target / "new.txt") == "new");
+  CHECK_FALSE(fs::exists(target / "old.txt"));
+  CHECK(entries(dir) == 1);
+}
+
+TEST_CASE("a write that cannot happen is an io Error naming the target, and changes nothing") {
+  const fs::path dir = test::scratch_dir("atomic-fail");
+  const fs::path target = dir / "missing-folder" / "db.btfdb";
+  try {
+    write_file_atomically(target.string(), std::string("x"));
+    FAIL("no error");
+  } catch (const Error& e) {
+    CHECK(e.code() == "io");
+    CHECK(std::string(e.what()).find(target.string()) != std::string::npos);
+  }
+  CHECK(entries(dir) == 0);
+}
