@@ -1,80 +1,95 @@
-// `btfvq compress`: measured samples into a (new or existing) database, with progress per phase.
-#include <filesystem>
+// `btfvq compress`: measured samples into a (new or existing) database, with a progress bar per
+// stage. Flags become options for one compress_database() call; this file only draws its progress.
 #include <fstream>
 #include <iostream>
+#include <memory>
 #include <mutex>
+#include <sstream>
 
 #include "client/cli.h"
 #include "client/progress_bar.h"
 #include "pipeline/encode/compress.h"
-#include "pipeline/format/database.h"
 #include "pipeline/io/sample_io.h"
 
 namespace btfvq::cli {
 namespace {
 
-namespace fs = std::filesystem;
+ParameterDictionary config_of(const Args& a) {
+  const auto file = a.get("config");
+  if (!file) return ParameterDictionary::embedded_default("pipeline");
+  return pipeline_config(ParameterDictionary::load_file(*file).json(), *file);
+}
+
+std::vector<MaterialInput> inputs_of(const Args& a) {
+  std::vector<MaterialInput> inputs;
+  for (const auto& path : a.positional) {
+    const std::string name = a.positional.size() == 1 ? a.get_or("name", material_name_of(path)) : material_name_of(path);
+    inputs.push_back({name, "load", [path](const ProgressFn& progress) { return load_sample(path, progress); }});
+  }
+  return inputs;
+}
+
+// One bar per (material, stage); the bar of a finished stage is closed when the next one starts.
+class StageBars {
+ public:
+  void operator()(const CompressProgress& p) {
+    std::lock_guard<std::mutex> lock(m_);
+    const std::string key = p.stage + " " + p.material;
+    if (key != key_) {
+      if (bar_) bar_->finish();
+      bar_.reset();
+      key_ = key;
+      if (p.stage == "done") return;
+      bar_ = std::make_unique<ProgressBar>(p.material.empty() ? p.stage : key);
+    }
+    if (!bar_) return;
+    const double f = p.texels_total ? double(p.texels_done) / double(p.texels_total) : 0.0;
+    const std::string unit = p.stage == "load" ? " images" : " texels, P4 " + std::to_string(p.sizes[CodebookId::P4]) +
+                                                                 ", P1 " + std::to_string(p.sizes[CodebookId::P1]);
+    bar_->update(f, std::to_string(p.texels_done) + "/" + std::to_string(p.texels_total) + unit);
+  }
+  void finish() {
+    if (bar_) bar_->finish();
+    bar_.reset();
+  }
+
+ private:
+  std::mutex m_;
+  std::string key_;
+  std::unique_ptr<ProgressBar> bar_;
+};
+
+void print_summary(const std::string& out, const DatabaseSummary& s) {
+  std::cout << "wrote " << out << ": " << s.materials << " material(s), " << s.bytes << " bytes, ratio 1:" << s.ratio
+            << "\n";
+  for (const auto& r : s.added)
+    for (const auto& p : r.json["phases"])
+      std::cout << "  " << r.material << " phase " << p["phase"] << ": " << p["texels"] << " texels, "
+                << p["seconds"].get<double>() << " s, code-books " << p["codebook_sizes"].dump() << "\n";
+}
+
+void write_report(const std::string& file, const std::string& out, const DatabaseSummary& s) {
+  nlohmann::json materials = nlohmann::json::array();
+  for (const auto& r : s.added) materials.push_back(r.json);
+  std::ofstream f(file);
+  f << nlohmann::json{{"database", out}, {"bytes", s.bytes}, {"raw_bytes", s.raw_bytes},
+                      {"compression_ratio", s.ratio}, {"materials", materials}}
+           .dump(2);
+  if (!f) throw InputError("cannot write the report '" + file + "'");
+}
 
 int run_compress(const Args& a) {
   if (a.positional.empty()) throw InputError("usage: btfvq compress IN... --db OUT.btfdb [--config F]");
   const std::string out = a.require("db");
   if (a.has("name") && a.positional.size() != 1) throw InputError("--name needs exactly one input");
   CompressOptions options;
-  if (auto file = a.get("config")) options.config.merge(ParameterDictionary::load_file(*file));
-  validate_pipeline_config(options.config);  // a misspelled setting fails before any work
-
-  Database db;
-  if (fs::exists(out)) db = read_database(out);
-  nlohmann::json reports = nlohmann::json::array();
-  for (const auto& input : a.positional) {
-    const std::string name = a.positional.size() == 1 ? a.get_or("name", material_name_of(input)) : material_name_of(input);
-    if (db.find(name)) throw InputError("'" + out + "' already has a material named '" + name + "'");
-    MeasuredSample sample;
-    {
-      ProgressBar bar("load " + name);
-      sample = load_sample(input, [&](size_t done, size_t total) { bar.update(double(done) / double(total)); });
-      bar.finish(std::to_string(sample.width()) + " x " + std::to_string(sample.height()) + ", " +
-                 std::to_string(sample.pair_count()) + " images");
-    }
-    std::mutex m;
-    std::unique_ptr<ProgressBar> bar;
-    std::string stage;
-    options.progress = [&](const CompressProgress& p) {
-      std::lock_guard<std::mutex> lock(m);
-      if (p.stage != stage) {
-        if (bar) bar->finish();
-        stage = p.stage;
-        if (stage == "done") return;
-        bar = std::make_unique<ProgressBar>(stage + " " + name);
-      }
-      if (bar)
-        bar->update(p.texels_total ? double(p.texels_done) / double(p.texels_total) : 0.0,
-                    std::to_string(p.texels_done) + "/" + std::to_string(p.texels_total) + " texels, P4 " +
-                        std::to_string(p.sizes[CodebookId::P4]) + ", P1 " + std::to_string(p.sizes[CodebookId::P1]));
-    };
-    const CompressReport r = compress_material(db, sample, name, options);
-    if (bar) bar->finish();
-    reports.push_back(r.json);
-  }
-  // Round the new rows to what the file stores, so the in-memory model and the file decode alike.
-  quantize_new_rows(db);
-  write_database(db, out);
-  const uint64_t bytes = fs::file_size(out);
-  uint64_t raw = 0;
-  for (const auto& mat : db.materials) raw += mat.raw_bytes;
-  std::cout << "wrote " << out << ": " << db.materials.size() << " material(s), " << bytes << " bytes, ratio 1:"
-            << (bytes ? double(raw) / double(bytes) : 0.0) << "\n";
-  for (const auto& r : reports)
-    for (const auto& p : r["phases"])
-      std::cout << "  " << r["material"].get<std::string>() << " phase " << p["phase"] << ": " << p["texels"]
-                << " texels, " << p["seconds"].get<double>() << " s, code-books " << p["codebook_sizes"].dump() << "\n";
-  if (auto file = a.get("report")) {
-    std::ofstream f(*file);
-    f << nlohmann::json{{"database", out}, {"bytes", bytes}, {"raw_bytes", raw},
-                        {"compression_ratio", bytes ? double(raw) / double(bytes) : 0.0}, {"materials", reports}}
-             .dump(2);
-    if (!f) throw InputError("cannot write the report '" + *file + "'");
-  }
+  options.config = config_of(a);  // a misspelled setting fails before any work
+  StageBars bars;
+  options.progress = [&](const CompressProgress& p) { bars(p); };
+  const DatabaseSummary summary = compress_database(out, inputs_of(a), out, options);
+  bars.finish();
+  print_summary(out, summary);
+  if (auto file = a.get("report")) write_report(*file, out, summary);
   return 0;
 }
 

@@ -3,8 +3,14 @@
 #include <algorithm>
 #include <chrono>
 #include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <set>
 
 #include <btfvq/error.h>
+#include "pipeline/format/database.h"
+#include "pipeline/util/atomic_file.h"
 #include "pipeline/runtime/opencl_runtime.h"
 #include "pipeline/encode/resample.h"
 
@@ -49,11 +55,55 @@ constexpr double kStageEnd[4] = {0.02, 0.35, 0.55, 1.0};
 
 void validate_pipeline_config(const ParameterDictionary& config) { read_settings(config); }
 
+namespace {
+
+std::string type_name(const nlohmann::json& v) {
+  if (v.is_number_integer()) return "an integer";
+  if (v.is_number()) return "a number";
+  if (v.is_boolean()) return "true or false";
+  if (v.is_string()) return "a string";
+  if (v.is_array()) return "an array";
+  if (v.is_object()) return "an object";
+  return "null";
+}
+
+// Every override key must exist in the defaults with the same kind of value: the getters would
+// catch most mistakes too, but only for keys they read, and not an integer given as 2.5.
+void check_against(const nlohmann::json& defaults, const nlohmann::json& overrides, const std::string& prefix) {
+  for (const auto& [key, value] : overrides.items()) {
+    const std::string where = prefix + "." + key;
+    if (!defaults.contains(key)) throw ConfigError(where + ": unknown key (not in configs/pipeline.json)");
+    const auto& d = defaults[key];
+    const bool same_kind = (d.is_number() && value.is_number()) || (d.is_string() && value.is_string()) ||
+                           (d.is_boolean() && value.is_boolean()) || (d.is_array() && value.is_array()) ||
+                           (d.is_object() && value.is_object());
+    if (!same_kind || (d.is_number_integer() && !value.is_number_integer()))
+      throw ConfigError(where + ": must be " + type_name(d) + " (got " + value.dump() + ")");
+    if (d.is_object()) check_against(d, value, where);
+  }
+}
+
+void check_material_name(const std::string& name) {
+  if (name.empty() || name.size() > 200 || name.find_first_of("/\\\n\r\t") != std::string::npos)
+    throw InputError("material name '" + name + "' must be 1-200 characters without slashes or control characters");
+}
+
+}  // namespace
+
+ParameterDictionary pipeline_config(const nlohmann::json& overrides, const std::string& origin) {
+  ParameterDictionary config = ParameterDictionary::embedded_default("pipeline");
+  if (overrides.is_null()) return config;
+  if (!overrides.is_object()) throw ConfigError(origin + ": must be a JSON object");
+  check_against(config.json(), overrides, origin);
+  config.merge(ParameterDictionary(overrides, origin));
+  validate_pipeline_config(config);
+  return config;
+}
+
 CompressReport compress_material(Database& db, const MeasuredSample& sample, const std::string& name,
                                  const CompressOptions& options) {
   const PipelineSettings s = read_settings(options.config);
-  if (name.empty() || name.size() > 200 || name.find_first_of("/\\\n\r\t") != std::string::npos)
-    throw InputError("material name '" + name + "' must be 1-200 characters without slashes or control characters");
+  check_material_name(name);
   if (db.find(name)) throw InputError("the database already has a material named '" + name + "'");
   if (sample.texel_count() == 0 || sample.pair_count() == 0) throw InputError("the sample is empty");
   if (has_content(db) && !(db.codebooks.grid == s.grid))
@@ -126,6 +176,9 @@ CompressReport compress_material(Database& db, const MeasuredSample& sample, con
   mean_dissimilarity /= double(std::max<size_t>(result.dissimilarity.size(), 1));
   CompressReport out;
   out.material = name;
+  out.width = sample.width();
+  out.height = sample.height();
+  out.raw_bytes = sample.raw_bytes();
   out.json = {{"material", name},
               {"width", sample.width()},
               {"height", sample.height()},
@@ -150,6 +203,68 @@ CompressReport compress_material(Database& db, const MeasuredSample& sample, con
               {"codebook_sizes", CodebookSizes::of(db.codebooks)}};
   report("done", 0, sample.texel_count(), sample.texel_count(), 1.0);
   return out;
+}
+
+namespace {
+
+std::vector<uint8_t> read_previous(const std::string& path) {
+  if (path.empty() || !std::filesystem::exists(path)) return {};
+  std::ifstream in(path, std::ios::binary);
+  std::vector<uint8_t> bytes{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+  if (!in.good() && !in.eof()) throw InputError("cannot read the database '" + path + "'");
+  return bytes;
+}
+
+// Share of one input's progress that loading takes (the rest is compress_material's own fraction).
+constexpr double kLoadShare = 0.1;
+
+}  // namespace
+
+DatabaseSummary compress_database(const std::string& previous, const std::vector<MaterialInput>& inputs,
+                                  const std::string& out, const CompressOptions& options) {
+  validate_pipeline_config(options.config);
+  const std::vector<uint8_t> previous_bytes = read_previous(previous);
+  Database db = previous_bytes.empty() ? Database{} : parse_database(previous_bytes, previous);
+  std::set<std::string> names;
+  for (const MaterialInput& in : inputs) {
+    check_material_name(in.name);
+    if (db.find(in.name)) throw InputError("the database already has a material named '" + in.name + "'");
+    if (!names.insert(in.name).second) throw InputError("two inputs are both named '" + in.name + "'");
+  }
+
+  const double n = double(std::max<size_t>(inputs.size(), 1));
+  auto cancelled = [&] { return options.cancelled && options.cancelled(); };
+  DatabaseSummary summary;
+  for (size_t i = 0; i < inputs.size(); ++i) {
+    const MaterialInput& in = inputs[i];
+    auto forward = [&](CompressProgress p, double within) {
+      p.fraction = (double(i) + within) / n;
+      p.material = in.name;
+      p.material_index = i;
+      p.materials = inputs.size();
+      if (options.progress) options.progress(p);
+    };
+    if (cancelled()) throw CancelledError();
+    forward({in.load_stage, 0, 0, 0, 0, CodebookSizes::of(db.codebooks)}, 0);
+    const MeasuredSample sample = in.load([&](size_t done, size_t total) {
+      forward({in.load_stage, 0, done, total, 0, CodebookSizes::of(db.codebooks)},
+              total ? kLoadShare * double(done) / double(total) : 0);
+    });
+    if (cancelled()) throw CancelledError();
+    CompressOptions o = options;
+    o.progress = [&](const CompressProgress& p) { forward(p, kLoadShare + (1 - kLoadShare) * p.fraction); };
+    summary.added.push_back(compress_material(db, sample, in.name, o));
+  }
+  if (options.progress) options.progress({"write", 0, 0, 0, 1.0, CodebookSizes::of(db.codebooks), "", 0, inputs.size()});
+  // Round the new rows to what the file stores, so the in-memory model and the file decode alike.
+  quantize_new_rows(db);
+  const std::vector<uint8_t> bytes = serialize_database(db, {}, previous_bytes.empty() ? nullptr : &previous_bytes);
+  write_file_atomically(out, bytes);
+  summary.bytes = bytes.size();
+  summary.raw_bytes = raw_bytes(db);
+  summary.ratio = compression_ratio(summary.raw_bytes, summary.bytes);
+  summary.materials = db.materials.size();
+  return summary;
 }
 
 }  // namespace btfvq

@@ -1,6 +1,12 @@
 #pragma once
-// The one call that compresses a measured sample into a database: resample in tiles, run the
-// three-phase schedule, append the material. Shells (client/, server/) call only this.
+// The calls that compress measured samples into a database, in the manner of OpenImageIO's
+// make_texture: the shells (client/ `btfvq compress`, the server's job executor) turn their flags or
+// job fields into options, make one compress_database() call, and only map its progress.
+//
+//   compress_database:  previous file -> check names -> per input: load, compress_material
+//                       -> quantize -> serialize (old sections byte for byte) -> atomic write
+//   compress_material:  one sample into an in-memory database: resample in tiles, run the
+//                       three-phase schedule, append the material.
 #include <nlohmann/json.hpp>
 
 #include <functional>
@@ -14,12 +20,14 @@
 namespace btfvq {
 
 struct CompressProgress {
-  std::string stage;        // "resample", "phase1", "phase2", "phase3", "write"
+  std::string stage;        // "load", "resample", "phase1", "phase2", "phase3", "done", then "write"
   int phase = 0;            // 1, 2, 3 during the schedule; 0 otherwise
-  size_t texels_done = 0;   // within the current stage
+  size_t texels_done = 0;   // within the current stage (images during "load")
   size_t texels_total = 0;
-  double fraction = 0;      // of the whole compression, 0..1
+  double fraction = 0;      // compress_material: of this material; compress_database: of the whole call; 0..1
   CodebookSizes sizes{};
+  std::string material;     // compress_database: the input being worked on ("" while writing)
+  size_t material_index = 0, materials = 0;
 };
 
 struct CompressOptions {
@@ -30,12 +38,20 @@ struct CompressOptions {
 
 struct CompressReport {
   std::string material;
+  int width = 0, height = 0;
+  uint64_t raw_bytes = 0;
   nlohmann::json json;  // texels per phase, code-book sizes after each phase, seconds per stage
 };
 
 // Reads and validates every pipeline setting of `config` (unknown keys are errors) without
-// compressing anything: what a server checks when a job is submitted. Throws ConfigError.
+// compressing anything. Throws ConfigError.
 void validate_pipeline_config(const ParameterDictionary& config);
+
+// The shipped defaults (configs/pipeline.json) with `overrides` merged on top, validated: every key
+// must exist in the defaults with the same JSON type, and the merged settings must pass
+// validate_pipeline_config. The one check of user settings, for `--config` files and job fields
+// alike; a mistake is a ConfigError naming the key and `origin`.
+ParameterDictionary pipeline_config(const nlohmann::json& overrides, const std::string& origin);
 
 // Compresses `sample` as material `name` into `db`: shared code-books grow (append-only), one
 // material is appended. Throws InputError for a bad sample, name clash or bad config (before any
@@ -43,5 +59,30 @@ void validate_pipeline_config(const ParameterDictionary& config);
 // code-books may have grown: discard `db` (the file on disk is only replaced after success).
 CompressReport compress_material(Database& db, const MeasuredSample& sample, const std::string& name,
                                  const CompressOptions& options);
+
+// One material to add: its name and how to load its sample. load() is called when the input's turn
+// comes, so that one sample at a time is in memory; it reports (done, total) images.
+struct MaterialInput {
+  std::string name;
+  std::string load_stage = "load";  // the progress stage while load() runs (e.g. "synthesize")
+  std::function<MeasuredSample(const std::function<void(size_t, size_t)>& progress)> load;
+};
+
+struct DatabaseSummary {
+  uint64_t bytes = 0;      // of the written file
+  uint64_t raw_bytes = 0;  // of every material's measured input (the old ones included)
+  double ratio = 0;        // compression_ratio(raw_bytes, bytes)
+  size_t materials = 0;    // in the database now
+  std::vector<CompressReport> added;  // one per input, in order
+};
+
+// Compresses `inputs` into the database at `previous` ("" or a path that does not exist: a new
+// database) and writes the result to `out` atomically (`out` may equal `previous`). Sections
+// the previous file already holds are copied from it byte for byte. Names are checked (valid,
+// unique, not in the previous database) before any work; InputError / ConfigError /
+// CancelledError leave `out` as it was. `options.progress` sees every stage of every input with
+// `fraction` over the whole call (loading is the first tenth of each input's share).
+DatabaseSummary compress_database(const std::string& previous, const std::vector<MaterialInput>& inputs,
+                                  const std::string& out, const CompressOptions& options);
 
 }  // namespace btfvq

@@ -724,6 +724,16 @@ void write_database(const Database& db, const std::string& path, const PackSetti
   write_file_atomically(path, serialize_database(db, settings, previous.empty() ? nullptr : &previous));
 }
 
+double compression_ratio(uint64_t raw_bytes, uint64_t stored_bytes) {
+  return stored_bytes > 0 ? double(raw_bytes) / double(stored_bytes) : 0.0;
+}
+
+uint64_t raw_bytes(const Database& db) {
+  uint64_t raw = 0;
+  for (const Material& m : db.materials) raw += m.raw_bytes;
+  return raw;
+}
+
 Database read_database(const std::string& path) { return parse_database(read_file(path), path); }
 
 DatabaseInfo inspect_database(const std::string& path) {

@@ -123,6 +123,12 @@ void write_database(const Database& db, const std::string& path, const PackSetti
 // lengths, offsets, the section order implied by the versions, index ranges. Any problem throws
 // CorruptError naming the file and section; a missing or unreadable file throws InputError.
 Database read_database(const std::string& path);
+// The compression ratio raw : stored — the measured input's bytes as MeasuredSample::raw_bytes()
+// counts them (summed over materials) over the bytes of the database file; 0 for no bytes. The one
+// definition of the ratio: reports, `btfvq info`/`eval`, the catalogue and the benches use it.
+double compression_ratio(uint64_t raw_bytes, uint64_t stored_bytes);
+uint64_t raw_bytes(const Database& db);
+
 // Versions, sections, code-book sizes and materials of a file (fully validated like read_database).
 DatabaseInfo inspect_database(const std::string& path);
 // True if the file exists and starts with the .btfdb magic.
