@@ -24,11 +24,7 @@ std::string with_thousands(uint64_t n) {
 void print_sample_info(std::ostream& out, const std::string& path, const SampleInfo& info) {
   out << "sample:     " << path << "\n";
   out << "size:       " << info.width << " x " << info.height << "\n";
-  out << "directions: " << info.views << " views x ";
-  if (info.min_lights_per_view == info.lights_per_view)
-    out << info.lights_per_view << " lights\n";
-  else
-    out << info.min_lights_per_view << " to " << info.lights_per_view << " lights per view\n";
+  out << "directions: " << info.views << " views x " << info.lights_per_view << " lights\n";
   out << "dynamic:    " << (info.dynamic == Dynamic::HDR ? "HDR (linear float)" : "LDR (8-bit sRGB-encoded)") << "\n";
   out << "images:     " << info.images << "\n";
   out << "raw bytes:  " << with_thousands(info.raw_bytes) << "\n";

@@ -211,7 +211,6 @@ TEST_CASE("a zip is recognised by its content, not by its extension") {
   CHECK(info.height == kSize);
   CHECK(info.views == 81);
   CHECK(info.lights_per_view == 81);
-  CHECK(info.min_lights_per_view == 81);
   CHECK(info.images == 6561);
   CHECK(info.dynamic == Dynamic::LDR);
   CHECK(info.raw_bytes == uint64_t(kSize) * kSize * 6561 * 3);

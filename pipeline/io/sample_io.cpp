@@ -769,24 +769,10 @@ SampleInfo inspect_sample(const std::string& path, uint64_t max_expanded_bytes) 
   info.width = ref.width;
   info.height = ref.height;
   info.views = c.views.size();
-  info.lights_per_view = info.min_lights_per_view = c.lights.size();
+  info.lights_per_view = c.lights.size();
   info.images = c.images.size();
   info.dynamic = c.dynamic;
   info.raw_bytes = raw_bytes_of(ref.width, ref.height, c.images.size(), c.dynamic);
-  return info;
-}
-
-SampleInfo describe_sample(const MeasuredSample& sample) {
-  SampleInfo info;
-  info.width = sample.width();
-  info.height = sample.height();
-  info.views = sample.view_count();
-  info.lights_per_view = sample.max_lights();
-  info.min_lights_per_view = info.lights_per_view;
-  for (size_t v = 0; v < sample.view_count(); ++v) info.min_lights_per_view = std::min(info.min_lights_per_view, sample.lights(v).size());
-  info.images = sample.pair_count();
-  info.dynamic = sample.dynamic();
-  info.raw_bytes = sample.raw_bytes();
   return info;
 }
 

@@ -20,8 +20,7 @@ using ProgressFn = std::function<void(size_t done, size_t total)>;
 struct SampleInfo {
   int width = 0, height = 0;
   size_t views = 0;
-  size_t lights_per_view = 0;      // the largest light count of any view
-  size_t min_lights_per_view = 0;  // the smallest (equal to the largest for every valid sample)
+  size_t lights_per_view = 0;  // every view of a valid sample has the same lights
   size_t images = 0;
   Dynamic dynamic = Dynamic::LDR;
   uint64_t raw_bytes = 0;
@@ -41,9 +40,6 @@ MeasuredSample load_sample(const std::string& path, const ProgressFn& progress =
 
 // Reads only names and one image header: fast. Validates the names as load_sample does.
 SampleInfo inspect_sample(const std::string& path, uint64_t max_expanded_bytes = 0);
-
-// The same summary for a sample already in memory.
-SampleInfo describe_sample(const MeasuredSample& sample);
 
 struct WriteOptions {
   int jpeg_quality = 95;  // LDR images are JPEG, as the real archives
