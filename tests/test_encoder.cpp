@@ -86,8 +86,8 @@ TEST_CASE("reconstruct_texel follows the decode semantics on a hand-built code-b
 TEST_CASE("growing phase: every texel is reconstructed within the P4 threshold; code-books are valid") {
   SyntheticMaterial mat(8, 8);
   Codebooks k(mat.grid);
-  const SimilaritySettings s;
-  const Thresholds t;
+  const SimilaritySettings s = SimilaritySettings::defaults();
+  const Thresholds t = Thresholds::defaults();
   Encoder enc(k, Dynamic::LDR, t, s);
   for (uint32_t id = 0; id < 24; id += 1) {
     const auto texel = mat.texel(id * 5 % 64);
@@ -111,7 +111,7 @@ TEST_CASE("growing phase: every texel is reconstructed within the P4 threshold; 
 TEST_CASE("scaled copies of a texel reuse its entries with the scale in P6") {
   SyntheticMaterial mat(4, 4);
   Codebooks k(mat.grid);
-  Encoder enc(k, Dynamic::LDR, Thresholds{}, SimilaritySettings{});
+  Encoder enc(k, Dynamic::LDR, Thresholds::defaults(), SimilaritySettings::defaults());
   const auto texel = mat.texel(5);
   const P6Entry first = enc.encode_growing(texel.data());
   const size_t before = total_entries(k);
@@ -127,7 +127,8 @@ TEST_CASE("scaled copies of a texel reuse its entries with the scale in P6") {
 TEST_CASE("code-books are append-only: encoding more texels never changes existing entries") {
   SyntheticMaterial mat(8, 8);
   Codebooks k(mat.grid);
-  Encoder enc(k, Dynamic::LDR, Thresholds{}, SimilaritySettings{});
+  // Half the shipped thresholds: at the shipped ones this small material's later texels all match.
+  Encoder enc(k, Dynamic::LDR, Thresholds::defaults().relaxed(0.5), SimilaritySettings::defaults());
   for (uint32_t id = 0; id < 6; ++id) enc.encode_growing(mat.texel(id * 11 % 64).data());
   const Codebooks snapshot = k;
   for (uint32_t id = 6; id < 16; ++id) enc.encode_growing(mat.texel(id * 11 % 64).data());
@@ -151,12 +152,12 @@ TEST_CASE("code-books are append-only: encoding more texels never changes existi
 
 TEST_CASE("stricter thresholds give larger code-books and better reconstructions, looser the opposite") {
   SyntheticMaterial mat(8, 8);
-  const SimilaritySettings s;
+  const SimilaritySettings s = SimilaritySettings::defaults();
   std::vector<std::vector<float>> texels;
   for (uint32_t id = 0; id < 16; ++id) texels.push_back(mat.texel(id * 13 % 64));
   auto run = [&](double factor, size_t* size) {
     Codebooks k(mat.grid);
-    Encoder enc(k, Dynamic::LDR, Thresholds{}.relaxed(factor), s);
+    Encoder enc(k, Dynamic::LDR, Thresholds::defaults().relaxed(factor), s);
     std::vector<P6Entry> e;
     for (const auto& t : texels) e.push_back(enc.encode_growing(t.data()));
     double q = 0;  // quality measured after all insertions, with the final code-books
@@ -174,10 +175,12 @@ TEST_CASE("stricter thresholds give larger code-books and better reconstructions
 
 TEST_CASE("pruning and proxy ordering choose exactly what the exhaustive search chooses") {
   SyntheticMaterial mat(8, 8);
-  SimilaritySettings pruned, exhaustive;
+  SimilaritySettings pruned = SimilaritySettings::defaults(), exhaustive = SimilaritySettings::defaults();
+  // The shipped candidate_limit makes every search approximate; this is about the exact one.
+  pruned.candidate_limit = exhaustive.candidate_limit = 0;
   exhaustive.pruning = false;
   Codebooks a(mat.grid), b(mat.grid);
-  Encoder ea(a, Dynamic::LDR, Thresholds{}, pruned), eb(b, Dynamic::LDR, Thresholds{}, exhaustive);
+  Encoder ea(a, Dynamic::LDR, Thresholds::defaults(), pruned), eb(b, Dynamic::LDR, Thresholds::defaults(), exhaustive);
   for (uint32_t id = 0; id < 12; ++id) {
     const auto t = mat.texel(id * 7 % 64);
     const P6Entry x = ea.encode_growing(t.data()), y = eb.encode_growing(t.data());
@@ -199,11 +202,11 @@ TEST_CASE("pruning and proxy ordering choose exactly what the exhaustive search 
 TEST_CASE("frozen phase: best entry without insertion; empty code-books are an error") {
   SyntheticMaterial mat(8, 8);
   Codebooks k(mat.grid);
-  Encoder enc(k, Dynamic::LDR, Thresholds{}, SimilaritySettings{});
+  Encoder enc(k, Dynamic::LDR, Thresholds::defaults(), SimilaritySettings::defaults());
   CHECK_THROWS_AS(enc.encode_frozen(mat.texel(0).data()), InputError);
   for (uint32_t id = 0; id < 8; ++id) enc.encode_growing(mat.texel(id * 9 % 64).data());
   const Codebooks before = k;
-  const SimilaritySettings s;
+  const SimilaritySettings s = SimilaritySettings::defaults();
   for (uint32_t id = 40; id < 46; ++id) {
     const auto t = mat.texel(id);
     const P6Entry e = enc.encode_frozen(t.data());
@@ -219,18 +222,18 @@ TEST_CASE("HDR and MSE encodings keep the guarantee too") {
   SUBCASE("HDR, SSIM") {
     SyntheticMaterial mat(4, 4, Dynamic::HDR);
     Codebooks k(mat.grid);
-    const SimilaritySettings s;
-    Encoder enc(k, Dynamic::HDR, Thresholds{}, s);
+    const SimilaritySettings s = SimilaritySettings::defaults();
+    Encoder enc(k, Dynamic::HDR, Thresholds::defaults(), s);
     for (uint32_t id = 0; id < 8; ++id) {
       const auto t = mat.texel(id);
       const P6Entry e = enc.encode_growing(t.data());
-      CHECK(reconstruction_dissimilarity(k, Dynamic::HDR, s, t, e) <= Thresholds{}.p4 + 2e-4);
+      CHECK(reconstruction_dissimilarity(k, Dynamic::HDR, s, t, e) <= Thresholds::defaults().p4 + 2e-4);
     }
   }
   SUBCASE("LDR, MSE") {
     SyntheticMaterial mat(4, 4);
     Codebooks k(mat.grid);
-    SimilaritySettings s;
+    SimilaritySettings s = SimilaritySettings::defaults();
     s.metric = Metric::MSE;
     const Thresholds t = Thresholds::from(ParameterDictionary::embedded_default("pipeline"), Metric::MSE);
     Encoder enc(k, Dynamic::LDR, t, s);
@@ -266,8 +269,9 @@ TEST_CASE("thresholds come from the config; bad values are ConfigErrors naming t
 
 TEST_CASE("MSE: the LAESA pivot bound and partial sums choose exactly what the exhaustive search chooses") {
   SyntheticMaterial mat(8, 8);
-  SimilaritySettings pruned, exhaustive;
+  SimilaritySettings pruned = SimilaritySettings::defaults(), exhaustive = SimilaritySettings::defaults();
   pruned.metric = exhaustive.metric = Metric::MSE;
+  pruned.candidate_limit = exhaustive.candidate_limit = 0;  // the exact search (see above)
   exhaustive.pruning = false;
   const Thresholds t = Thresholds::from(ParameterDictionary::embedded_default("pipeline"), Metric::MSE).relaxed(0.3);
   Codebooks a(mat.grid), b(mat.grid);
@@ -291,15 +295,16 @@ TEST_CASE("MSE: the LAESA pivot bound and partial sums choose exactly what the e
 
 TEST_CASE("an approximate search (candidate_limit) evaluates fewer candidates and keeps the guarantee") {
   SyntheticMaterial mat(8, 8);
-  SimilaritySettings exact, approx;
+  SimilaritySettings exact = SimilaritySettings::defaults(), approx = SimilaritySettings::defaults();
+  exact.candidate_limit = 0;
   approx.candidate_limit = 1;
   Codebooks a(mat.grid), b(mat.grid);
-  Encoder ea(a, Dynamic::LDR, Thresholds{}, exact), eb(b, Dynamic::LDR, Thresholds{}, approx);
+  Encoder ea(a, Dynamic::LDR, Thresholds::defaults(), exact), eb(b, Dynamic::LDR, Thresholds::defaults(), approx);
   for (uint32_t id = 0; id < 12; ++id) {
     const auto t = mat.texel(id * 7 % 64);
     ea.encode_growing(t.data());
     const P6Entry e = eb.encode_growing(t.data());
-    CHECK(reconstruction_dissimilarity(b, Dynamic::LDR, approx, t, e) <= Thresholds{}.p4 + 2e-4);
+    CHECK(reconstruction_dissimilarity(b, Dynamic::LDR, approx, t, e) <= Thresholds::defaults().p4 + 2e-4);
   }
   // Entry counts are not ordered either way: the proxy-nearest candidates (the 1D code-books are
   // searched by ProxyIndex) often compose better than the SSIM-best ones, so fewer fallbacks insert.
@@ -317,7 +322,7 @@ TEST_CASE("black texels (LDR 16/128/128, HDR zero) encode and reconstruct exactl
       black[n + i] = black[2 * n + i] = dyn == Dynamic::LDR ? 128.0f : 50.0f;
     }
     Codebooks k(g);
-    Encoder enc(k, dyn, Thresholds{}, SimilaritySettings{});
+    Encoder enc(k, dyn, Thresholds::defaults(), SimilaritySettings::defaults());
     const P6Entry e = enc.encode_growing(black.data());
     std::vector<float> recon(3 * n);
     reconstruct_texel(k, dyn, e.index, e.scale, recon.data());

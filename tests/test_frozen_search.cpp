@@ -16,7 +16,7 @@ struct Grown {
   Codebooks books{mat.grid};
   std::unique_ptr<Encoder> encoder;
   explicit Grown(Dynamic dyn = Dynamic::LDR, uint32_t texels = 40) : mat(12, 12, dyn), books(mat.grid) {
-    encoder = std::make_unique<Encoder>(books, dyn, Thresholds{}, SimilaritySettings{});
+    encoder = std::make_unique<Encoder>(books, dyn, Thresholds::defaults(), SimilaritySettings::defaults());
     for (uint32_t id = 0; id < texels; ++id) encoder->encode_growing(mat.texel(id * 7 % 144).data());
   }
 };
@@ -118,15 +118,15 @@ TEST_CASE("grids the kernel's rows cannot hold use the pruned search; forcing th
   CHECK_FALSE(FrozenSearch::kernel_fits(wide, 1));
   CHECK(FrozenSearch::kernel_fits(wide, 0));
   CHECK(FrozenSearch::kernel_fits(AngularGrid{}, 1));
-  CHECK(FrozenSearch::preferred(wide, SimilaritySettings{}) == SearchPath::Pruned);
-  CHECK(FrozenSearch::preferred(AngularGrid{}, SimilaritySettings{}) == SearchPath::BatchedOpenCL);
-  SimilaritySettings mse;
+  CHECK(FrozenSearch::preferred(wide, SimilaritySettings::defaults()) == SearchPath::Pruned);
+  CHECK(FrozenSearch::preferred(AngularGrid{}, SimilaritySettings::defaults()) == SearchPath::BatchedOpenCL);
+  SimilaritySettings mse = SimilaritySettings::defaults();
   mse.metric = Metric::MSE;
   CHECK(FrozenSearch::preferred(AngularGrid{}, mse) == SearchPath::Pruned);
 
   SyntheticMaterial mat(4, 4, Dynamic::LDR, wide);
   Codebooks books(mat.grid);
-  Encoder encoder(books, Dynamic::LDR, Thresholds{}, SimilaritySettings{});
+  Encoder encoder(books, Dynamic::LDR, Thresholds::defaults(), SimilaritySettings::defaults());
   for (uint32_t id = 0; id < 4; ++id) encoder.encode_growing(mat.texel(id).data());
   CHECK_THROWS_AS(FrozenSearch(encoder, SearchPath::BatchedOpenCL, 1), DeviceError);
   // The reference is scalar and holds any grid: it still picks the pruned search's entries.

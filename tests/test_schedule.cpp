@@ -42,7 +42,7 @@ TEST_CASE("Halton order is well spread: its first 1% already covers every region
 }
 
 TEST_CASE("phase sizes follow the fractions, with at least one texel in phase 1") {
-  ScheduleSettings s;
+  ScheduleSettings s = ScheduleSettings::defaults();
   size_t a, b;
   phase_sizes(4096, s, &a, &b);
   CHECK(a == 41);
@@ -54,9 +54,9 @@ TEST_CASE("phase sizes follow the fractions, with at least one texel in phase 1"
 
 TEST_CASE("three phases: growth only in phases 1 and 2, guarantee for grown texels, every texel indexed") {
   SyntheticMaterial mat(16, 16);
-  const SimilaritySettings sim;
-  const Thresholds thr;
-  ScheduleSettings sch;
+  const SimilaritySettings sim = SimilaritySettings::defaults();
+  const Thresholds thr = Thresholds::defaults();
+  ScheduleSettings sch = ScheduleSettings::defaults();
   sch.phase1_fraction = 0.03;
   sch.phase2_fraction = 0.06;
   sch.tile_texels = 16;
@@ -100,22 +100,22 @@ TEST_CASE("three phases: growth only in phases 1 and 2, guarantee for grown texe
 
 TEST_CASE("phase 3 gives the same result with one or two threads, and cancellation stops between tiles") {
   SyntheticMaterial mat(8, 8);
-  ScheduleSettings sch;
+  ScheduleSettings sch = ScheduleSettings::defaults();
   sch.phase1_fraction = 0.05;
   sch.phase2_fraction = 0.05;
   sch.tile_texels = 8;
   Codebooks a(mat.grid), b(mat.grid);
   sch.threads = 1;
-  const ScheduleResult r1 = run_schedule(a, Dynamic::LDR, 8, 8, mat.source(), Thresholds{}, SimilaritySettings{}, sch);
+  const ScheduleResult r1 = run_schedule(a, Dynamic::LDR, 8, 8, mat.source(), Thresholds::defaults(), SimilaritySettings::defaults(), sch);
   sch.threads = 2;
-  const ScheduleResult r2 = run_schedule(b, Dynamic::LDR, 8, 8, mat.source(), Thresholds{}, SimilaritySettings{}, sch);
+  const ScheduleResult r2 = run_schedule(b, Dynamic::LDR, 8, 8, mat.source(), Thresholds::defaults(), SimilaritySettings::defaults(), sch);
   CHECK(r1.p6_index == r2.p6_index);
   CHECK(r1.p6_scale == r2.p6_scale);
   CHECK(a == b);
 
   Codebooks c(mat.grid);
   int tiles = 0;
-  CHECK_THROWS_AS(run_schedule(c, Dynamic::LDR, 8, 8, mat.source(), Thresholds{}, SimilaritySettings{}, sch, {},
+  CHECK_THROWS_AS(run_schedule(c, Dynamic::LDR, 8, 8, mat.source(), Thresholds::defaults(), SimilaritySettings::defaults(), sch, {},
                                [&] { return ++tiles > 2; }),
                   CancelledError);
   CHECK(tiles == 3);
@@ -152,7 +152,7 @@ TEST_CASE("schedule.search picks the phase-3 path; an unknown value is a ConfigE
   auto path = [](const std::string& value) {
     ParameterDictionary d = ParameterDictionary::embedded_default("pipeline");
     d.merge(ParameterDictionary(nlohmann::json{{"schedule", {{"search", value}}}}, "test"));
-    return ScheduleSettings::from(d).search_path(AngularGrid{}, SimilaritySettings{});
+    return ScheduleSettings::from(d).search_path(AngularGrid{}, SimilaritySettings::defaults());
   };
   CHECK(path("auto") == SearchPath::BatchedOpenCL);
   CHECK(path("pruned") == SearchPath::Pruned);

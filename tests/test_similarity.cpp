@@ -74,7 +74,7 @@ TEST_CASE("identical slices have similarity 1 and MSE 0") {
   std::mt19937 rng(3);
   WindowGeometry g(11, 11, 1);
   const auto x = random_slice(rng, 3 * 2 * 121, 16, 235);
-  SimilaritySettings s;
+  SimilaritySettings s = SimilaritySettings::defaults();
   CHECK(slice_similarity(s, Dynamic::LDR, g, x.data(), x.data(), 2, 0, 3, 255) == doctest::Approx(1.0).epsilon(1e-5));
   s.metric = Metric::MSE;
   CHECK(slice_similarity(s, Dynamic::LDR, g, x.data(), x.data(), 2, 0, 3, 255) == doctest::Approx(0.0));
@@ -82,7 +82,7 @@ TEST_CASE("identical slices have similarity 1 and MSE 0") {
 
 TEST_CASE("SSIM percentile agrees with a direct double-precision implementation") {
   std::mt19937 rng(7);
-  SimilaritySettings s;
+  SimilaritySettings s = SimilaritySettings::defaults();
   for (int trial = 0; trial < 20; ++trial) {
     const bool hdr = trial % 4 == 3;
     const int rows = trial % 5 == 4 ? 1 : 11;
@@ -104,7 +104,7 @@ TEST_CASE("SSIM percentile agrees with a direct double-precision implementation"
 }
 
 TEST_CASE("the score is the 2nd percentile: r = floor(0.02 n) values may be worse") {
-  SimilaritySettings s;
+  SimilaritySettings s = SimilaritySettings::defaults();
   ScoreAccumulator acc;
   std::vector<float> v(150, 0.99f);  // n = 150 -> r = 3
   v[10] = 0.1f, v[20] = 0.2f, v[30] = 0.3f;
@@ -142,7 +142,7 @@ TEST_CASE("SSIM is computed in absolute units: a scaled copy is not identical, a
     far[i] = 16 + 0.5f * (x[i] - 16);
     near[i] = 16 + 0.99f * (x[i] - 16);
   }
-  SimilaritySettings s;
+  SimilaritySettings s = SimilaritySettings::defaults();
   const double a = slice_similarity(s, Dynamic::LDR, g, x.data(), far.data(), 1, 0, 1, 255);
   const double b = slice_similarity(s, Dynamic::LDR, g, x.data(), near.data(), 1, 0, 1, 255);
   CHECK(a < 0.9);

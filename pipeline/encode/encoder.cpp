@@ -77,6 +77,10 @@ Thresholds Thresholds::from(const ParameterDictionary& d) {
   return from(d, SimilaritySettings::from(d).metric);
 }
 
+Thresholds Thresholds::defaults(Metric metric) {
+  return from(ParameterDictionary::embedded_default("pipeline"), metric);
+}
+
 Thresholds Thresholds::relaxed(double f) const {
   if (!(f >= 0) || !std::isfinite(f)) throw ConfigError("threshold relax factor must be a finite number >= 0");
   return {p4 * f, p3 * f, m * f, p2 * f, p1 * f, i2 * f, i1 * f, c * f};

@@ -25,15 +25,18 @@
 namespace btfvq {
 
 // Acceptance thresholds per code-book, as dissimilarities (SSIM: 1 - 2nd percentile of SSIM;
-// MSE: mean squared error in coding-space units). C is a plain Euclidean (a, b) distance.
+// MSE: mean squared error in coding-space units). C is a plain Euclidean (a, b) distance. Values
+// come from the "thresholds" section of configs/pipeline.json only (the members carry none).
 struct Thresholds {
-  double p4 = 0.06, p3 = 0.05, m = 0.045, p2 = 0.035, p1 = 0.02, i2 = 0.035, i1 = 0.02, c = 1.0;
+  double p4 = 0, p3 = 0, m = 0, p2 = 0, p1 = 0, i2 = 0, i1 = 0, c = 0;
 
   // Reads "thresholds.ssim.*" and "thresholds.mse.*" (both are validated) and returns the set of
   // the given metric.
   static Thresholds from(const ParameterDictionary& d, Metric metric);
   // The same, for the metric named by "similarity.metric".
   static Thresholds from(const ParameterDictionary& d);
+  // The shipped thresholds of `metric` (configs/pipeline.json).
+  static Thresholds defaults(Metric metric = Metric::SSIM);
   // Every dissimilarity times factor (phase 2 of the schedule uses 2.5).
   Thresholds relaxed(double factor) const;
 };

@@ -21,6 +21,8 @@ ResampleSettings ResampleSettings::from(const ParameterDictionary& config) {
   return s;
 }
 
+ResampleSettings ResampleSettings::defaults() { return from(ParameterDictionary::embedded_default("pipeline")); }
+
 namespace {
 
 constexpr double kPoleTheta = 1e-9;  // a measured view this close to the normal has no azimuth

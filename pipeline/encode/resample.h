@@ -27,15 +27,17 @@
 
 namespace btfvq {
 
+// The "resample" section of configs/pipeline.json (the members carry no values of their own).
 struct ResampleSettings {
-  int light_neighbours = 8;      // k_l: measured lights per (view, alpha, beta) node
-  int view_neighbours = 6;       // k_v: measured views per output view node
-  double kernel_width_deg = 20;  // Gaussian exp(-(d / width)^2), d great-circle (chart) distance
-  int polynomial_degree = 1;     // 0: constant precision; 1: linear precision in the tangent plane
-  int tile_texels = 32;          // texels per device batch (small: the batch's data stays in cache)
+  int light_neighbours = 0;     // k_l: measured lights per (view, alpha, beta) node
+  int view_neighbours = 0;      // k_v: measured views per output view node
+  double kernel_width_deg = 0;  // Gaussian exp(-(d / width)^2), d great-circle (chart) distance
+  int polynomial_degree = 0;    // 0: constant precision; 1: linear precision in the tangent plane
+  int tile_texels = 0;          // texels per device batch (small: the batch's data stays in cache)
 
   // Reads the "resample" section (keys as above) of a pipeline configuration.
   static ResampleSettings from(const ParameterDictionary& config);
+  static ResampleSettings defaults();  // from(the shipped configs/pipeline.json)
 };
 
 // One entry of a sparse row: a column index (a measured pair, or a slot) and its weight.

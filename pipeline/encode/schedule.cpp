@@ -27,6 +27,8 @@ ScheduleSettings ScheduleSettings::from(const ParameterDictionary& d) {
   return s;
 }
 
+ScheduleSettings ScheduleSettings::defaults() { return from(ParameterDictionary::embedded_default("pipeline")); }
+
 SearchPath ScheduleSettings::search_path(const AngularGrid& grid, const SimilaritySettings& similarity) const {
   if (search == "pruned") return SearchPath::Pruned;
   if (search == "batched-reference") return SearchPath::BatchedReference;

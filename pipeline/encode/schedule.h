@@ -18,21 +18,22 @@
 
 namespace btfvq {
 
+// The "schedule" section of configs/pipeline.json (the members carry no values of their own).
 struct ScheduleSettings {
-  double phase1_fraction = 0.01;
-  double phase2_fraction = 0.04;
-  double relax_factor = 2.5;
-  int tile_texels = 256;
-  int threads = 2;  // phase 3 workers
+  double phase1_fraction = 0;
+  double phase2_fraction = 0;
+  double relax_factor = 0;
+  int tile_texels = 0;
+  int threads = 0;  // phase 3 workers
   // Phase 3 search: "auto" (the fastest: the batched kernel on OpenCL, else pruned), "pruned",
   // "batched" (OpenCL, or its C++ reference without OpenCL), "batched-reference" (the kernel's C++
-  // reference even on OpenCL: for comparisons)
-  // (on the compute device's path: OpenCL or its C++ reference). All give the same entries.
-  std::string search = "auto";
+  // reference even on OpenCL: for comparisons). All give the same entries.
+  std::string search;
   SearchPath search_path(const AngularGrid& grid, const SimilaritySettings& similarity) const;
 
   // Reads the "schedule" section.
   static ScheduleSettings from(const ParameterDictionary& d);
+  static ScheduleSettings defaults();  // from(the shipped configs/pipeline.json)
 };
 
 // Resamples the given texels (ids y * width + x) into out (n x 3 x grid.samples() floats).

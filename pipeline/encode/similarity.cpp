@@ -28,6 +28,8 @@ SimilaritySettings SimilaritySettings::from(const ParameterDictionary& d) {
   return s;
 }
 
+SimilaritySettings SimilaritySettings::defaults() { return from(ParameterDictionary::embedded_default("pipeline")); }
+
 WindowGeometry::WindowGeometry(int rows, int cols, int radius) : rows_(rows), cols_(cols), radius_(radius) {
   inv_count_.resize(size_t(size()));
   for (int r = 0; r < rows; ++r)

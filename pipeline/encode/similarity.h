@@ -25,17 +25,20 @@ namespace btfvq {
 
 enum class Metric { SSIM, MSE };
 
+// The "similarity" section of configs/pipeline.json, the one source of its values: the members
+// carry none (a default-constructed struct is all zero), defaults() reads the shipped file.
 struct SimilaritySettings {
   Metric metric = Metric::SSIM;
-  double outlier_fraction = 0.02;  // the percentile: fraction of values allowed below the score
-  double k1 = 0.01, k2 = 0.03;     // SSIM constants (Wang et al. 2004)
-  int window_radius = 1;           // 1 -> 3 x 3 windows (3 samples along beta for 1D slices)
-  bool pruning = true;             // abandon candidates early; false = exhaustive (for tests)
-  int proxy_candidates = 16;       // candidates tried first, in order of a cheap proxy distance
-  int candidate_limit = 0;         // > 0: evaluate only this many best-by-proxy candidates (approximate)
+  double outlier_fraction = 0;  // the percentile: fraction of values allowed below the score
+  double k1 = 0, k2 = 0;        // SSIM constants (Wang et al. 2004)
+  int window_radius = 0;        // 1 -> 3 x 3 windows (3 samples along beta for 1D slices)
+  bool pruning = false;         // abandon candidates early; false = exhaustive (for tests)
+  int proxy_candidates = 0;     // candidates tried first, in order of a cheap proxy distance
+  int candidate_limit = 0;      // > 0: evaluate only this many best-by-proxy candidates (approximate)
 
   // Reads the "similarity" section; unknown keys are reported by the dictionary's check_unused().
   static SimilaritySettings from(const ParameterDictionary& d);
+  static SimilaritySettings defaults();  // from(the shipped configs/pipeline.json)
 };
 
 // Offset about which an RGB scale acts on a coding-space channel (RGB = A (Y-16, Cb-128, Cr-128)).
