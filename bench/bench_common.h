@@ -15,7 +15,7 @@ namespace btfvq::bench {
 struct Args {
   std::filesystem::path json = "bench.json";
   std::filesystem::path scratch = "/tmp/btfvq-bench-scratch";
-  std::filesystem::path testdata = "../shared/testdata";
+  std::filesystem::path testdata = "tests/data";
   std::filesystem::path figures = "bench/results";
   bool quick = false;  // smaller sizes, for trying a bench by hand
 };

@@ -110,7 +110,7 @@ int main(int argc, char** argv) {
   const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
   std::ostringstream md;
   nlohmann::json figures;
-  md << "The original compressor's databases (../shared/testdata/btfbase), " << n
+  md << "The original compressor's databases (tests/data/btfbase), " << n
      << " queries per pattern: random (texel and both directions uniformly random) and coherent (whole images "
         "of the material, each under one random light and view). M/s = million evaluations per second. "
         "Single-thread: Decoder::evaluate per CPU second of the thread. Batch: one call of Decoder::decode_opencl "
@@ -149,7 +149,7 @@ int main(int argc, char** argv) {
   md << "\nPaper (Sec. 6, one core of a 2.83 GHz Xeon): 0.31-1.36 M evaluations/s depending on coherence. "
         "The batch kernel computes in float (the reference in double); the last column is the largest "
         "difference to the reference over every channel of every query.\n";
-  // A picture of the real fabric as our decoder sees it (FORMAT.md's rules), for a person to check.
+  // A picture of the real fabric as our decoder sees it (docs/btfbase-format.md's rules), for a person to check.
   const Database proposte = import_btfbase((args.testdata / "btfbase" / "proposte").string());
   for (const auto& [light, view, file] : {std::tuple{Direction{0, 0}, Direction{0, 0}, "proposte_l0-0_v0-0.png"},
                                           std::tuple{Direction{45, 120}, Direction{30, 60}, "proposte_l45-120_v30-60.png"}}) {
@@ -157,7 +157,7 @@ int main(int argc, char** argv) {
     md << "\n![proposte, light " << light.theta << "," << light.phi << ", view " << view.theta << "," << view.phi
        << "](bench/results/" << file << ")";
   }
-  md << "\n\nproposte decoded by btfvq from the original compressor's database (../shared/testdata/btfbase/proposte).\n";
+  md << "\n\nproposte decoded by btfvq from the original compressor's database (tests/data/btfbase/proposte).\n";
   bench::write_section(args, "Decoding throughput", 40, md.str(), figures);
   return 0;
 }

@@ -1,5 +1,5 @@
 // Real data: the proposte BTF (256 x 256, measured by the Bonn group) as the original authors'
-// compressor stored it (../shared/testdata/btfbase/proposte), decoded at the 81 x 81 measured
+// compressor stored it (tests/data/btfbase/proposte), decoded at the 81 x 81 measured
 // directions and compressed again by btfvq at the default and at a high-quality setting. The
 // reference for the metrics is the decoded sample, i.e. the input already went through MLVQ once.
 // Also the whole-sample figures of the speed issue: time per stage and peak memory at 256 x 256.
@@ -52,7 +52,7 @@ int main(int argc, char** argv) {
   std::ostringstream md;
   nlohmann::json figures;
   md << "proposte (" << sample.width() << " x " << sample.height()
-     << ", LDR, 81 x 81 directions) decoded by btfvq from the original compressor's database (../shared/testdata/"
+     << ", LDR, 81 x 81 directions) decoded by btfvq from the original compressor's database (tests/data/"
         "btfbase/proposte, " << decode_seconds << " s to import and decode), then compressed by btfvq into a fresh "
         "database and compared with that decoded sample. **Caveat:** the input already went through MLVQ once, so it "
         "is easier to compress than the measured BTF was; the original compressor's figures below are against the "

@@ -80,7 +80,7 @@ int main(int argc, char** argv) {
   const size_t n = args.quick ? (1 << 18) : (1 << 20);
   std::ostringstream md;
   nlohmann::json figures;
-  md << "BtfMaterial (include/btfvq/renderer_api.h) on the original compressor's databases (../shared/testdata/btfbase), " << n
+  md << "BtfMaterial (include/btfvq/renderer_api.h) on the original compressor's databases (tests/data/btfbase), " << n
      << " queries per pattern, directions as unit vectors. Single-thread rates per CPU second (M/s); random: texel, "
         "light, view and (xi1, xi2) uniformly random; coherent: runs of 256 neighbouring texels under one light and "
         "view. Batch: Decoder::decode on " << ComputeDevice::get().description() << " (wall time, every core).\n\n"

@@ -27,7 +27,7 @@ for b in "$bin"/bench_*; do
   name=$(basename "$b")
   if [ -n "${BENCH_ONLY:-}" ] && [[ ",${BENCH_ONLY// /,}," != *",$name,"* ]]; then continue; fi
   echo "== $name" >&2
-  "$b" --json "$work/$name.json" --scratch "$work/$name.scratch" --testdata "$root/../shared/testdata" \
+  "$b" --json "$work/$name.json" --scratch "$work/$name.scratch" --testdata "$root/tests/data" \
        --figures "$root/bench/results" "${extra[@]}" >&2
   python3 - "$work/$name.json" "$sections/$name.json" "$commit" "make bench${extra:+ BENCH_ARGS=\"${extra[*]}\"}" <<'PY'
 import datetime, json, sys

@@ -1,12 +1,12 @@
 // Batch decoder F(x, y, omega_i, omega_v): the same steps as Decoder::evaluate (pipeline/decode/decoder.cpp)
-// and FORMAT.md "Decoding one value", in 32-bit floats, DECODE_WIDTH queries per work-item.
+// and docs/btfbase-format.md "Decoding one value", in 32-bit floats, DECODE_WIDTH queries per work-item.
 //
 // Why float is enough: every interpolation is continuous across cell boundaries, and the one
 // ill-conditioned step of the reference (alpha = asin(y / cos(beta)) near the pole of the onion
 // parametrization) is computed here in a well-conditioned form: with the light at (theta, phi')
 //   sin(beta) = cos(phi') sin(theta), cos(beta) = sqrt(cos^2(theta) + (sin(phi') sin(theta))^2),
 //   alpha = atan2(sin(phi') sin(theta), cos(theta)),  beta = atan2(sin(beta), cos(beta)),
-// which are the same angles (FORMAT.md step 2) without cancellation.
+// which are the same angles (docs/btfbase-format.md step 2) without cancellation.
 //
 // Why explicit vectors: PoCL's CPU device vectorizes a work-group only when LLVM's loop vectorizer
 // accepts the whole kernel, and on a kernel of this size its SLP pass runs first and makes that
@@ -128,7 +128,7 @@ __kernel void decode_batch(__global const float* p1, __global const float* c, __
   const floatv zero = 0.0f;
   const floatv theta_i = pick(valid, ti_in, zero), theta_v = pick(valid, tv_in, zero);
   const floatv phi_v = pick(valid, wrap360(pv_in), zero);
-  const floatv light_azimuth = pick(valid, wrap180(pi_in - pv_in - 90.0f), zero);  // phi' of FORMAT.md step 1
+  const floatv light_azimuth = pick(valid, wrap180(pi_in - pv_in - 90.0f), zero);  // phi' of docs/btfbase-format.md step 1
   const intv texel = pick_i(valid, code >> 1, (intv)0), hdr = code & 1;
   const intv p6 = GATHERI(p6_index, 2 * texel);
   valid &= p6 >= 0;
@@ -154,7 +154,7 @@ __kernel void decode_batch(__global const float* p1, __global const float* c, __
   const intv pi0 = cell_of(phi_v, 360.0f / (float)np, np - 1, &pw);
   const intv pi1 = pick_i(pi0 + 1 == np, (intv)0, pi0 + 1);
 
-  // Cubic Hermite along beta (FORMAT.md step 4), folded with the tangents into one weight per P1
+  // Cubic Hermite along beta (docs/btfbase-format.md step 4), folded with the tangents into one weight per P1
   // sample: value = h00 p0 + h10 m0 + h01 p1 + h11 m1 with m0 = p1 - p0 (first cell) or
   // (p1 - s[i-1]) / 2, m1 = p1 - p0 (last cell) or (s[i+1] - p0) / 2 = (p1 - p0) / 2 (sic).
   const floatv h01 = -2.0f * bw * bw * bw + 3.0f * bw * bw;
@@ -170,7 +170,7 @@ __kernel void decode_batch(__global const float* p1, __global const float* c, __
   // The code-book chain is followed level by level for the four (phi_v, theta_v) nodes and both
   // alpha nodes at once: the look-ups of one level are independent, so their memory latencies
   // overlap instead of adding up (for random queries the tables are mostly not in cache).
-  // FORMAT.md step 6: P4 over phi_v (nodes pi0, pi1), P3 over theta_v (nodes ti, ti + 1), each node
+  // docs/btfbase-format.md step 6: P4 over phi_v (nodes pi0, pi1), P3 over theta_v (nodes ti, ti + 1), each node
   // with its scale; entry e = 2 x phi node + theta node.
   const intv p4a = p4_row * np + pi0, p4b = p4_row * np + pi1;
   const intv p3a = GATHERI(p4_index, 2 * p4a) * nt + ti, p3b = GATHERI(p4_index, 2 * p4b) * nt + ti;

@@ -1,7 +1,7 @@
 #pragma once
 // The [alpha, beta] "onion slice" parametrization of light directions (paper Sec. 4.1) and the
 // regular (theta_v, phi_v) grid of view directions, with exactly the grids, azimuth convention and
-// interpolation cells of the original authors' decoder (../shared/testdata/btfbase/FORMAT.md), so
+// interpolation cells of the original authors' decoder (docs/btfbase-format.md), so
 // that one decoder reads their databases and ours.
 //
 // Grid formulas (all angles in degrees):

@@ -1,7 +1,7 @@
 /* The C header used from C. Two modes:
  *   c_api_test BTFBASE_DIR
  *     opens the original compressor's proposte database and checks the known decoded values of
- *     ../shared/testdata/btfbase/FORMAT.md (to 0.05), the error codes and sample/pdf agreement;
+ *     docs/btfbase-format.md (to 0.05), the error codes and sample/pdf agreement;
  *   c_api_test DB MATERIAL U V THETA_I PHI_I THETA_V PHI_V R G B XI1 XI2 LX LY LZ PDF
  *     asserts that the C API gives exactly the RGB, sampled direction and pdf the C++ API gave
  *     (tests/test_c_api.cpp runs it with the C++ values). */
@@ -32,7 +32,7 @@ static btfvq_vec3 vector_of(double theta, double phi) {
 }
 
 static int known_values(const char* dir) {
-  /* FORMAT.md, proposte: x, y, light (theta, phi), view (theta, phi), R, G, B. */
+  /* docs/btfbase-format.md, proposte: x, y, light (theta, phi), view (theta, phi), R, G, B. */
   static const double rows[5][9] = {
       {0, 0, 0, 0, 0, 0, 233.31, 209.99, 175.31},
       {10, 20, 60, 90, 0, 0, 141.91, 127.94, 108.17},

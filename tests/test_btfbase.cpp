@@ -80,7 +80,7 @@ bool contains(const std::string& s, const std::string& part) { return s.find(par
 
 }  // namespace
 
-TEST_CASE("alu imports with the sizes of FORMAT.md and quantreport.txt") {
+TEST_CASE("alu imports with the sizes of docs/btfbase-format.md and quantreport.txt") {
   const Database& db = alu();
   const Codebooks& k = db.codebooks;
   CHECK(k.grid.n_beta == 11);

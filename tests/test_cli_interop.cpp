@@ -25,7 +25,7 @@ struct Known {
   double r, g, b;
 };
 
-// FORMAT.md's table, from an independent re-implementation of the original decoder.
+// docs/btfbase-format.md's table, from an independent re-implementation of the original decoder.
 const Known kKnown[] = {
     {"alu", 0, 0, "0,0", "0,0", 261.51, 263.54, 259.34},
     {"alu", 10, 20, "60,90", "0,0", 62.66, 64.64, 60.54},
@@ -41,7 +41,7 @@ const Known kKnown[] = {
 
 }  // namespace
 
-TEST_CASE("import-btfbase then render --texel reproduces FORMAT.md's decoded values to 0.05") {
+TEST_CASE("import-btfbase then render --texel reproduces docs/btfbase-format.md's decoded values to 0.05") {
   const fs::path dir = test::scratch_dir("cli-interop");
   for (const char* name : {"alu", "proposte"}) {
     const fs::path db = dir / (std::string(name) + ".btfdb");

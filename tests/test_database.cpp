@@ -21,7 +21,7 @@ struct Counts {
 float uniform(std::mt19937& rng, float lo, float hi) { return std::uniform_real_distribution<float>(lo, hi)(rng); }
 uint32_t pick(std::mt19937& rng, size_t n) { return std::uniform_int_distribution<uint32_t>(0, uint32_t(n - 1))(rng); }
 
-// Appends random rows with valid indices and value ranges like the real alu database (FORMAT.md).
+// Appends random rows with valid indices and value ranges like the real alu database (docs/btfbase-format.md).
 void append_rows(Database& db, std::mt19937& rng, const Counts& n) {
   Codebooks& k = db.codebooks;
   const AngularGrid& g = k.grid;
@@ -417,7 +417,7 @@ Table<T> btfbase_table(const std::string& file, size_t cols) {
   return t;
 }
 
-// The real alu database of the original compressor (FORMAT.md), as the in-memory model.
+// The real alu database of the original compressor (docs/btfbase-format.md), as the in-memory model.
 Database load_alu() {
   Database db;
   db.codebooks = Codebooks(AngularGrid{});

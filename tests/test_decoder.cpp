@@ -30,7 +30,7 @@ struct Known {
   Rgb rgb;
 };
 
-// FORMAT.md "Known values": decoded by an independent re-implementation of the original's rules.
+// docs/btfbase-format.md "Known values": decoded by an independent re-implementation of the original's rules.
 const Known kAlu[] = {
     {0, 0, {0, 0}, {0, 0}, {261.51f, 263.54f, 259.34f}},      {10, 20, {60, 90}, {0, 0}, {62.66f, 64.64f, 60.54f}},
     {33, 7, {45, 120}, {30, 60}, {61.33f, 63.31f, 59.21f}},   {5, 40, {75, 345}, {75, 15}, {19.86f, 21.78f, 17.81f}},
@@ -93,11 +93,11 @@ size_t mismatches(const std::vector<Rgb>& ref, const std::vector<Rgb>& got) {
 
 }  // namespace
 
-TEST_CASE("alu decodes to the independently computed values of FORMAT.md") {
+TEST_CASE("alu decodes to the independently computed values of docs/btfbase-format.md") {
   check_known(alu(), kAlu, std::size(kAlu));
 }
 
-TEST_CASE("proposte decodes to the independently computed values of FORMAT.md") {
+TEST_CASE("proposte decodes to the independently computed values of docs/btfbase-format.md") {
   check_known(proposte(), kProposte, std::size(kProposte));
 }
 

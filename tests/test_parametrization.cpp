@@ -7,7 +7,7 @@
 
 using namespace btfvq;
 
-TEST_CASE("grid nodes are those of FORMAT.md") {
+TEST_CASE("grid nodes are those of docs/btfbase-format.md") {
   AngularGrid g;
   CHECK(g.beta_node(0) == doctest::Approx(-90.0));
   CHECK(g.beta_node(5) == doctest::Approx(0.0));

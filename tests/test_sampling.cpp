@@ -289,7 +289,7 @@ TEST_CASE("the renderer API: texture coordinates, names, errors, and concurrent 
   CHECK_THROWS_AS(db.material("nope"), NotFoundError);
   CHECK_THROWS_AS(db.material(size_t(3)), NotFoundError);
   CHECK_THROWS_AS(BtfDatabase::open((test::scratch_dir("missing") / "none.btfdb").string()), InputError);
-  // FORMAT.md: proposte texel (33, 7), light (45, 120), view (30, 60) decodes to 205.27, 192.56, 174.63.
+  // docs/btfbase-format.md: proposte texel (33, 7), light (45, 120), view (30, 60) decodes to 205.27, 192.56, 174.63.
   const Rgb v = mat.evaluate((33 + 0.5) / 256.0, (7 + 0.5) / 256.0, Direction{45, 120}, Direction{30, 60});
   CHECK(v.r == doctest::Approx(205.27).epsilon(0.0005));
   CHECK(v.g == doctest::Approx(192.56).epsilon(0.0005));

@@ -1,7 +1,7 @@
 #pragma once
 // Colour spaces in which luminance and chroma are coded separately (paper Sec. 4.3):
 //  - LDR: BT.601 studio-swing YCbCr computed on the gamma-encoded 8-bit values, exactly the
-//    constants of the original decoder (FORMAT.md step 5). Y in [16, 235], Cb/Cr in [16, 240].
+//    constants of the original decoder (docs/btfbase-format.md step 5). Y in [16, 235], Cb/Cr in [16, 240].
 //  - HDR: LogLuv (Larson 1998): log2 luminance and CIE 1976 (u', v') chromaticity of linear
 //    Rec. 709 RGB. The coding space keeps luminance linear (L = Y) because MLVQ normalises luminance
 //    slices into densities, which must be non-negative; u', v' are scaled by 255 so that chroma
@@ -23,7 +23,7 @@ struct Lab3 {
 };
 
 YCbCr rgb_to_ycbcr(const Rgb& rgb);
-// The original decoder's inverse; clamps below at 0 only (not above), as FORMAT.md step 5.
+// The original decoder's inverse; clamps below at 0 only (not above), as docs/btfbase-format.md step 5.
 Rgb ycbcr_to_rgb(const YCbCr& ycc);
 
 LogLuv rgb_to_logluv(const Rgb& linear_rgb);

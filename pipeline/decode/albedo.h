@@ -5,7 +5,7 @@
 //
 // The onion parametrization makes this a tensor-product quadrature: d omega = cos(beta) d alpha
 // d beta, and inside one (alpha, beta) cell of the grid the decoded value is linear in alpha and a
-// cubic in beta (FORMAT.md steps 4-5), so a 3 x 3 Gauss-Legendre rule per cell is accurate to far
+// cubic in beta (docs/btfbase-format.md steps 4-5), so a 3 x 3 Gauss-Legendre rule per cell is accurate to far
 // better than 1% (tests/test_sampling.cpp checks it against a brute-force integration).
 #include <cstddef>
 

@@ -13,7 +13,7 @@ namespace btfvq {
 
 namespace {
 
-// The cubic Hermite of FORMAT.md step 4 inside beta cell i at parameter t. The weights depend only
+// The cubic Hermite of docs/btfbase-format.md step 4 inside beta cell i at parameter t. The weights depend only
 // on the query, so they are computed once and applied to every P1 row the query touches.
 struct Hermite {
   int i = 0;
@@ -99,7 +99,7 @@ Rgb Decoder::evaluate(size_t material, int x, int y, const Direction& light, con
 
 namespace {
 
-// Everything FORMAT.md steps 1-4 and 6 derive from the directions alone: the interpolation cells and
+// Everything docs/btfbase-format.md steps 1-4 and 6 derive from the directions alone: the interpolation cells and
 // weights. A renderer asks for many texels under one light and view, so the last geometry each
 // thread computed is kept and reused when the directions and the grid are the same (the values are
 // those the computation gives, so results do not depend on the cache).

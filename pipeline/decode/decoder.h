@@ -1,6 +1,6 @@
 #pragma once
 // The decoder F(x, y, omega_i, omega_v) of paper Sec. 4.6 / eq. 4, exactly as
-// ../shared/testdata/btfbase/FORMAT.md "Decoding one value" defines it:
+// docs/btfbase-format.md "Decoding one value" defines it:
 //   P6 -> P4 (linear over phi_v, wrapping) -> P3 (linear over theta_v) -> M -> per M entry:
 //   Y = linear in alpha of P2 scale x P1 (cubic Hermite along beta, with the original's tangents),
 //   (Cb, Cr) = linear in beta over C(I1), then linear in alpha over I2, then coding space -> RGB

@@ -127,7 +127,7 @@ LightSampler::Mixture LightSampler::mixture(size_t material, int x, int y, const
   if (p4_row < 0) return mx;  // (the P6 scale only scales the reflectance; the density ignores it)
   mx.hdr = mat.dynamic == Dynamic::HDR;
 
-  // The decoder's view blend (FORMAT.md step 6): P4 over phi_v, P3 over theta_v, with their scales.
+  // The decoder's view blend (docs/btfbase-format.md step 6): P4 over phi_v, P3 over theta_v, with their scales.
   const AngularGrid& g = db.codebooks.grid;
   double phi_v = std::atan2(view.y, view.x) / kDeg;
   if (phi_v < 0) phi_v += 360;

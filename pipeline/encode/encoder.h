@@ -7,7 +7,7 @@
 // then C) parts. A vector whose nearest code-vector is not within its threshold is inserted
 // (pruning VQ), bottom-up, and indices and scales are returned upward. Code-books only grow.
 //
-// Scale semantics (the decoder's, FORMAT.md / eq. 4): P2 slices are absolute luminance of the
+// Scale semantics (the decoder's, docs/btfbase-format.md / eq. 4): P2 slices are absolute luminance of the
 // normalized 2D slice, P1 rows are densities whose P2 scale is the row sum; C/I1/I2 chroma is
 // absolute; the P3, P4 and P6 scales multiply RGB, i.e. (Y-16, Cb-128, Cr-128) for LDR and Y alone
 // for HDR. New M, P3 and P4 entries are normalized to a fixed brightness so that slices of one shape

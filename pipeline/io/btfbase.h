@@ -1,5 +1,5 @@
 #pragma once
-// The original authors' "BTFBASE" text databases (../shared/testdata/btfbase/FORMAT.md): one text
+// The original authors' "BTFBASE" text databases (docs/btfbase-format.md): one text
 // matrix file per code-book ("rows cols min max" header, then rows lines of cols numbers), a
 // per-material P6 pair NAME_PDF6Dslices.txt / NAME_PDF6Dscale.txt (indices stored plus one, 0 = texel
 // not compressed) and all_materialInfo.txt with the grid, code-book sizes and one line per material.

@@ -5,7 +5,7 @@
 
 namespace btfvq::test {
 
-std::filesystem::path testdata_dir();   // ../shared/testdata
+std::filesystem::path testdata_dir();   // tests/data
 std::filesystem::path source_dir();     // the repository root
 std::filesystem::path bin_dir();        // build/bin (btfvq, btfvq-server)
 // A fresh, empty directory unique to this test process and `name`; removed when the process ends.
