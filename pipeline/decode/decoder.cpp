@@ -3,11 +3,11 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
-#include <thread>
 
 #include <btfvq/error.h>
 #include "pipeline/runtime/opencl_runtime.h"
 #include "pipeline/parametrization.h"
+#include "pipeline/util/parallel.h"
 
 namespace btfvq {
 
@@ -319,14 +319,11 @@ int32_t texel_code(const Material& mat, int32_t offset, int32_t x, int32_t y) {
 }
 
 // Runs f(begin, end) over [0, n) split across the cores: packing queries and unpacking results is
-// the serial part of a batch, and while it runs the device's cores would otherwise idle.
+// the serial part of a batch, and while it runs the device's cores would otherwise idle. Parts are
+// at least 32768 queries long, so that handing one to another thread is cheap next to running it.
 template <class F>
 void split_over_cores(size_t n, F&& f) {
-  const size_t parts = std::min<size_t>(std::max(1u, std::thread::hardware_concurrency()), n / 32768 + 1);
-  std::vector<std::thread> helpers;
-  for (size_t p = 1; p < parts; ++p) helpers.emplace_back([&f, p, n, parts] { f(n * p / parts, n * (p + 1) / parts); });
-  f(0, n / parts);
-  for (auto& t : helpers) t.join();
+  parallel_for(0, n, f, in_parts(n, std::min(parallel_threads(), n / 32768 + 1)));
 }
 
 }  // namespace

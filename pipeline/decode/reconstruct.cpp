@@ -1,12 +1,11 @@
 #include "pipeline/decode/reconstruct.h"
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
-#include <thread>
 
 #include "pipeline/decode/decoder.h"
 #include <btfvq/error.h>
+#include "pipeline/util/parallel.h"
 
 namespace btfvq {
 
@@ -37,6 +36,24 @@ std::vector<uint32_t> used_p4_entries(const Material& mat, size_t p4_rows) {
       used.push_back(uint32_t(i));
     }
   return used;
+}
+
+// The column of one (view, light) pair, from the P4 table decoded for its directions.
+void fill_pair(const Material& mat, const std::vector<Rgb>& table, size_t pair, MeasuredSample& out) {
+  const size_t pairs = out.pair_count(), texels = out.texel_count();
+  for (size_t t = 0; t < texels; ++t) {
+    const int32_t p4 = mat.p6_index[t];
+    const Rgb c = p4 < 0 ? Rgb{} : table[size_t(p4)];
+    const float s = p4 < 0 ? 0.0f : mat.p6_scale[t];
+    const float rgb[3] = {c.r * s, c.g * s, c.b * s};
+    const size_t base = (t * pairs + pair) * 3;
+    for (int ch = 0; ch < 3; ++ch) {
+      if (mat.dynamic == Dynamic::LDR)
+        out.ldr_data()[base + size_t(ch)] = uint8_t(std::clamp(std::lround(rgb[ch]), 0L, 255L));
+      else
+        out.hdr_data()[base + size_t(ch)] = rgb[ch];
+    }
+  }
 }
 
 }  // namespace
@@ -70,38 +87,22 @@ MeasuredSample reconstruct_sample(const Database& db, const std::string& materia
   MeasuredSample out(mat.width, mat.height, geometry.views(), lights, mat.dynamic);
   const Decoder decoder(db);
   const auto used = used_p4_entries(mat, db.codebooks.p4_index.rows());
-  const size_t pairs = out.pair_count(), texels = out.texel_count();
 
-  // Pairs are independent: each worker takes the next (view, light) pair and fills its column.
+  // Pairs are independent: each worker takes the next (view, light) pair and fills its column from
+  // a P4 table of its own, reused pair after pair (it is as long as the code-book).
   std::vector<std::pair<size_t, size_t>> order;
   for (size_t v = 0; v < out.view_count(); ++v)
     for (size_t l = 0; l < out.lights(v).size(); ++l) order.emplace_back(v, l);
-  std::atomic<size_t> next{0};
-  auto work = [&] {
-    std::vector<Rgb> table(db.codebooks.p4_index.rows());
-    for (size_t k; (k = next.fetch_add(1)) < order.size();) {
+  const ParallelOptions options{.threads = size_t(std::max(threads, 1)), .grain = 1};
+  std::vector<std::vector<Rgb>> tables(parallel_slots(order.size(), options),
+                                       std::vector<Rgb>(db.codebooks.p4_index.rows()));
+  parallel_for(0, order.size(), [&](size_t first, size_t last, size_t slot) {
+    for (size_t k = first; k < last; ++k) {
       const auto [v, l] = order[k];
-      decode_p4_table(decoder, mat, used, out.lights(v)[l], out.views()[v], table);
-      const size_t pair = out.pair_index(v, l);
-      for (size_t t = 0; t < texels; ++t) {
-        const int32_t p4 = mat.p6_index[t];
-        const Rgb c = p4 < 0 ? Rgb{} : table[size_t(p4)];
-        const float s = p4 < 0 ? 0.0f : mat.p6_scale[t];
-        const float rgb[3] = {c.r * s, c.g * s, c.b * s};
-        const size_t base = (t * pairs + pair) * 3;
-        for (int ch = 0; ch < 3; ++ch) {
-          if (mat.dynamic == Dynamic::LDR)
-            out.ldr_data()[base + size_t(ch)] = uint8_t(std::clamp(std::lround(rgb[ch]), 0L, 255L));
-          else
-            out.hdr_data()[base + size_t(ch)] = rgb[ch];
-        }
-      }
+      decode_p4_table(decoder, mat, used, out.lights(v)[l], out.views()[v], tables[slot]);
+      fill_pair(mat, tables[slot], out.pair_index(v, l), out);
     }
-  };
-  std::vector<std::thread> pool;
-  for (int i = 1; i < std::max(threads, 1); ++i) pool.emplace_back(work);
-  work();
-  for (auto& t : pool) t.join();
+  }, options);
   return out;
 }
 

@@ -3,11 +3,10 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <exception>
-#include <thread>
 
 #include <btfvq/error.h>
 #include "pipeline/runtime/opencl_runtime.h"
+#include "pipeline/util/parallel.h"
 
 namespace btfvq {
 
@@ -242,22 +241,10 @@ void FrozenSearch::bracket(int bin, double* lower, double* upper) {
   *upper = bin >= kBins - 1 ? 1e300 : double(bin + 1) / kBins + kMargin;
 }
 
+// Phase 3 keeps its configured worker count (schedule.threads).
 template <class F>
 void FrozenSearch::parallel(size_t n, F&& f) const {
-  const int workers = int(std::min<size_t>(size_t(threads_), std::max<size_t>(n, 1)));
-  std::vector<std::thread> pool;
-  std::vector<std::exception_ptr> errors(static_cast<size_t>(workers));
-  for (int w = 0; w < workers; ++w)
-    pool.emplace_back([&, w] {
-      try {
-        for (size_t i = size_t(w); i < n; i += size_t(workers)) f(i);
-      } catch (...) {
-        errors[size_t(w)] = std::current_exception();
-      }
-    });
-  for (auto& t : pool) t.join();
-  for (auto& e : errors)
-    if (e) std::rethrow_exception(e);
+  parallel_for(0, n, f, {.threads = size_t(threads_)});
 }
 
 std::vector<float> FrozenSearch::query_block(const FrozenQuery& q) const {

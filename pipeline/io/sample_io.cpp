@@ -7,11 +7,9 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
 #include <cstdio>
 #include <ctime>
-#include <exception>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -19,10 +17,10 @@
 #include <mutex>
 #include <optional>
 #include <set>
-#include <thread>
 
 #include <btfvq/error.h>
 #include "pipeline/util/atomic_file.h"
+#include "pipeline/util/parallel.h"
 
 namespace btfvq {
 
@@ -41,34 +39,10 @@ using Bytes = std::vector<unsigned char>;
 
 std::string quoted(const std::string& s) { return "'" + s + "'"; }
 
-// ---------------------------------------------------------------------------------------------
-// Running work on two threads; the first exception wins and is rethrown on the calling thread.
-
-template <class Fn>
-void parallel_for(size_t n, const Fn& fn) {
-  const size_t threads = std::min(kThreads, n);
-  if (threads <= 1) {
-    for (size_t i = 0; i < n; ++i) fn(i);
-    return;
-  }
-  std::atomic<size_t> next{0};
-  std::exception_ptr error;
-  std::mutex mutex;
-  auto work = [&] {
-    try {
-      for (size_t i; (i = next++) < n;) fn(i);
-    } catch (...) {
-      std::lock_guard lock(mutex);
-      if (!error) error = std::current_exception();
-      next = n;
-    }
-  };
-  std::vector<std::thread> pool;
-  for (size_t t = 1; t < threads; ++t) pool.emplace_back(work);
-  work();
-  for (auto& t : pool) t.join();
-  if (error) std::rethrow_exception(error);
-}
+// A thread claims one image at a time (decoding one is long), but one contiguous part of the texels
+// for a whole scatter or gather, so that it walks one long run of the store.
+const ParallelOptions kPerImage{.threads = kThreads, .grain = 1};
+ParallelOptions texel_parts(size_t texels) { return in_parts(texels, kThreads); }
 
 // ---------------------------------------------------------------------------------------------
 // Image names.
@@ -536,17 +510,16 @@ void load_pixels(const Catalogue& c, const Reference& ref, MeasuredSample& s, st
     const size_t count = std::min(batch_size, n - start);
     if (archive)  // libarchive reads sequentially: one thread fetches, two decode
       for (size_t i = 0; i < count; ++i) data[i] = read_archive_image(*archive, position, c, c.images[start + i]);
-    parallel_for(count, [&](size_t i) {
+    parallel_for(0, count, [&](size_t i) {
       const ImageEntry& e = c.images[start + i];
       if (!archive) data[i] = read_file(e.file);
       decode(e, data[i], ref, batch.data() + i * image_values);
       data[i] = Bytes();
-    });
+    }, kPerImage);
     for (size_t i = 0; i < count; ++i) offset[i] = c.images[start + i].pair_index * 3;
-    parallel_for(kThreads, [&](size_t part) {
-      scatter(batch.data(), image_values, count, offset.data(), store.data(), pairs * 3, texels * part / kThreads,
-              texels * (part + 1) / kThreads);
-    });
+    parallel_for(0, texels, [&](size_t t0, size_t t1) {
+      scatter(batch.data(), image_values, count, offset.data(), store.data(), pairs * 3, t0, t1);
+    }, texel_parts(texels));
     if (progress) progress(start + count, n);
   }
 }
@@ -702,13 +675,12 @@ void write_images(const MeasuredSample& s, const std::vector<T>& store, const st
   std::set<std::string> folders;
   for (size_t start = 0; start < pairs; start += batch_size) {
     const size_t count = std::min(batch_size, pairs - start);
-    parallel_for(kThreads, [&](size_t part) {
-      gather(store.data() + start * 3, pairs * 3, count, batch.data(), image_values, texels * part / kThreads,
-             texels * (part + 1) / kThreads);
-    });
-    parallel_for(count, [&](size_t i) {
+    parallel_for(0, texels, [&](size_t t0, size_t t1) {
+      gather(store.data() + start * 3, pairs * 3, count, batch.data(), image_values, t0, t1);
+    }, texel_parts(texels));
+    parallel_for(0, count, [&](size_t i) {
       encoded[i] = encode(names[start + i], batch.data() + i * image_values, s.width(), s.height(), options.jpeg_quality);
-    });
+    }, kPerImage);
     for (size_t i = 0; i < count; ++i) {
       const std::string& name = names[start + i];
       if (writer) {

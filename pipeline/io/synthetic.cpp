@@ -2,12 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
-#include <functional>
-#include <thread>
 
 #include <btfvq/directions.h>
 #include <btfvq/error.h>
 #include "pipeline/runtime/opencl_runtime.h"
+#include "pipeline/util/parallel.h"
 
 namespace btfvq {
 
@@ -434,34 +433,27 @@ const std::vector<uint8_t>& srgb_table() {
   return lut;
 }
 
-// Runs body(i) for i in [0, n) on the hardware threads.
-void parallel_for(size_t n, const std::function<void(size_t)>& body) {
-  const size_t threads = std::clamp<size_t>(std::thread::hardware_concurrency(), 1, 16);
-  std::vector<std::thread> pool;
-  for (size_t t = 0; t < threads; ++t)
-    pool.emplace_back([&, t] {
-      for (size_t i = t; i < n; i += threads) body(i);
-    });
-  for (auto& th : pool) th.join();
-}
+// The reference renderer is the slow path (tests, machines without OpenCL), so it takes every core;
+// 16 at most, the cap it has always had.
+const ParallelOptions kRenderThreads{.threads = 16};
 
 void render_reference(const MaterialMaps& maps, MeasuredSample& out, const ProgressFn& progress) {
   const auto dirs = direction_vectors();
   const int n_dirs = int(bonn81().size());
   const int texels = maps.width * maps.height;
   std::vector<float> shadows(size_t(texels) * n_dirs);
-  parallel_for(shadows.size(), [&](size_t i) {
+  parallel_for(0, shadows.size(), [&](size_t i) {
     const int l = int(i / texels), t = int(i % texels);
     shadows[i] = synth_cl::synth_shadow(maps.texels.data(), maps.width, maps.height, maps.height_max, t,
                                         synth_cl::synth_vec(dirs[3 * l], dirs[3 * l + 1], dirs[3 * l + 2]));
-  });
+  }, kRenderThreads);
   const int hdr = out.is_hdr() ? 1 : 0;
-  parallel_for(size_t(texels), [&](size_t t) {
+  parallel_for(0, size_t(texels), [&](size_t t) {
     for (int v = 0; v < n_dirs; ++v)
       synth_cl::synth_shade_item(maps.texels.data(), shadows.data(), dirs.data(), dirs.data(), srgb_table().data(),
                                  maps.width, maps.height, maps.height_max, maps.exposure, n_dirs, n_dirs, 0, int(t), v,
                                  hdr, out.ldr_data().data(), out.hdr_data().data());
-  });
+  }, kRenderThreads);
   if (progress) progress(size_t(texels), size_t(texels));
 }
 

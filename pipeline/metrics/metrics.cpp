@@ -2,15 +2,13 @@
 
 #include <algorithm>
 #include <array>
-#include <atomic>
 #include <cmath>
 #include <cstring>
-#include <exception>
 #include <limits>
 #include <string>
-#include <thread>
 
 #include <btfvq/error.h>
+#include "pipeline/util/parallel.h"
 
 namespace btfvq {
 
@@ -326,41 +324,34 @@ class Evaluator {
   Evaluator(const MeasuredSample& r, const MeasuredSample& t) : r_(r), t_(t), results_(r.pair_count()) {}
 
   EvaluationReport run(int threads) {
-    const int n = std::max(1, threads);
-    std::vector<std::vector<uint64_t>> hist(static_cast<size_t>(n));
-    std::vector<std::exception_ptr> errors(static_cast<size_t>(n));
-    std::vector<std::thread> pool;
-    for (int i = 0; i < n; ++i)
-      pool.emplace_back([this, i, &hist, &errors] {
-        try {
-          hist[size_t(i)].assign(kHistogramBins, 0);
-          work(hist[size_t(i)]);
-        } catch (...) {
-          errors[size_t(i)] = std::current_exception();
-        }
-      });
-    for (auto& th : pool) th.join();
-    for (auto& e : errors)
-      if (e) std::rethrow_exception(e);
-    for (size_t i = 1; i < hist.size(); ++i)
-      for (size_t k = 0; k < kHistogramBins; ++k) hist[0][k] += hist[i][k];
-    return report(hist[0]);
+    const size_t pairs = r_.pair_count();
+    const ParallelOptions options{.threads = size_t(std::max(1, threads)), .grain = kPairsPerBatch};
+    std::vector<Scratch> scratch;
+    const size_t slots = parallel_slots(pairs, options);
+    scratch.reserve(slots);
+    for (size_t i = 0; i < slots; ++i) scratch.emplace_back(r_.width(), r_.height());
+    parallel_for(0, pairs, [&](size_t first, size_t last, size_t slot) { work(first, last, scratch[slot]); }, options);
+    for (size_t i = 1; i < scratch.size(); ++i)
+      for (size_t k = 0; k < kHistogramBins; ++k) scratch[0].hist[k] += scratch[i].hist[k];
+    return report(scratch[0].hist);
   }
 
  private:
-  void work(std::vector<uint64_t>& hist) {
-    SsimWorkspace ws{SsimParameters{}};
-    const size_t pairs = r_.pair_count();
-    std::vector<PairImages> batch(kPairsPerBatch);
-    GrayImage planes[6];
-    for (auto& p : planes) p = GrayImage(r_.width(), r_.height());
-    for (;;) {
-      const size_t first = next_.fetch_add(kPairsPerBatch);
-      if (first >= pairs) return;
-      const size_t count = std::min(kPairsPerBatch, pairs - first);
-      gather(first, count, batch);
-      for (size_t k = 0; k < count; ++k) results_[first + k] = compare(batch[k], ws, planes, hist);
+  // One worker's buffers, kept across its batches: a batch of images is 25 MB at 256 x 256.
+  struct Scratch {
+    Scratch(int width, int height) : ws{SsimParameters{}}, batch(kPairsPerBatch), hist(kHistogramBins, 0) {
+      for (auto& p : planes) p = GrayImage(width, height);
     }
+    SsimWorkspace ws;
+    std::vector<PairImages> batch;
+    GrayImage planes[6];
+    std::vector<uint64_t> hist;
+  };
+
+  void work(size_t first, size_t last, Scratch& s) {
+    const size_t count = last - first;
+    gather(first, count, s.batch);
+    for (size_t k = 0; k < count; ++k) results_[first + k] = compare(s.batch[k], s.ws, s.planes, s.hist);
   }
 
   // Texel-major storage: copy `count` consecutive pairs of every texel at once, so each texel's
@@ -448,7 +439,6 @@ class Evaluator {
   const MeasuredSample& r_;
   const MeasuredSample& t_;
   std::vector<PairResult> results_;
-  std::atomic<size_t> next_{0};
 };
 
 }  // namespace
