@@ -692,7 +692,6 @@ void Service::run(const JobRecord& job) {
     std::lock_guard lock(mutex_);
     if (auto it = live_.find(job.id); it != live_.end()) store_->set_job_progress(job.id, it->second.progress);
     store_->set_job_state(job.id, state, error, state == "queued" ? 0 : job.started, state == "queued" ? 0 : now_seconds());
-    ++jobs_finished_[state];
   };
   auto cancel_requested = [&] {
     std::lock_guard lock(mutex_);
@@ -754,7 +753,6 @@ void Service::publish(const JobRecord& job, const JobSpec& spec, const fs::path&
     store_->set_job_progress(job.id, it->second.progress);
   }
   store_->publish(v, now_seconds());
-  ++jobs_finished_["succeeded"];
 }
 
 }  // namespace btfvq::server

@@ -112,7 +112,6 @@ class Service {
   void count_bytes_served(uint64_t n) { bytes_served_ += n; }
   std::string metrics();
   const ServiceConfig& config() const { return config_; }
-  Store& store() { return *store_; }
 
  private:
   friend class UploadSink;
@@ -154,7 +153,6 @@ class Service {
   uint64_t revision_ = 0;
   std::atomic<uint64_t> bytes_served_{0}, bytes_uploaded_{0};
   std::map<std::string, double> stage_seconds_;
-  std::map<std::string, uint64_t> jobs_finished_;
   // Opened databases for previews, by file (a published version never changes); a few at most.
   std::mutex preview_mutex_;
   std::map<std::filesystem::path, std::shared_ptr<const BtfDatabase>> preview_cache_;
