@@ -227,7 +227,7 @@ void HttpServer::install_routes() {
         const std::string text = key.dump();
         if (text != state->last) {
           state->last = text;
-          const bool final = Service::is_final(job["state"]);
+          const bool final = is_final(job["state"].get<JobState>());
           const std::string e = sse_event(final ? "end" : "progress", job);
           if (!sink.write(e.data(), e.size())) return false;
           state->last_write = std::chrono::steady_clock::now();

@@ -275,10 +275,6 @@ uint64_t Service::wait_for_change(uint64_t revision, std::chrono::milliseconds t
   return revision_;
 }
 
-bool Service::is_final(const std::string& state) {
-  return state == "succeeded" || state == "failed" || state == "cancelled";
-}
-
 // ---------------------------------------------------------------- submission
 
 // A sample is checked when the job is submitted (names, escaping archive entries, the expanded size
@@ -444,9 +440,9 @@ json Service::job_json(const JobRecord& job) {
   const double now = now_seconds();
   const double end = job.finished > 0 ? job.finished : now;
   const double elapsed = job.started > 0 ? std::max(0.0, end - job.started) : 0.0;
-  const double fraction = progress.value("fraction", job.state == "succeeded" ? 1.0 : 0.0);
+  const double fraction = progress.value("fraction", job.state == JobState::succeeded ? 1.0 : 0.0);
   json eta = nullptr;
-  if (job.state == "running" && fraction > 0.001) eta = elapsed * (1 - fraction) / fraction;
+  if (job.state == JobState::running && fraction > 0.001) eta = elapsed * (1 - fraction) / fraction;
   json materials = json::array();
   for (const auto& m : job.spec["materials"]) materials.push_back(m["name"]);
   return {{"id", job.id},
@@ -495,9 +491,9 @@ json Service::cancel(const std::string& id) {
     std::lock_guard lock(mutex_);
     auto record = store_->job(id);
     if (!record) throw NotFoundError("no job '" + id + "'");
-    if (is_final(record->state)) throw ConflictError("job '" + id + "' is already " + record->state);
-    if (record->state == "queued") {
-      store_->set_job_state(id, "cancelled", json{{"code", "cancelled"}, {"message", "cancelled while queued"}}, 0,
+    if (is_final(record->state)) throw ConflictError("job '" + id + "' is already " + to_string(record->state));
+    if (record->state == JobState::queued) {
+      store_->set_job_state(id, JobState::cancelled, json{{"code", "cancelled"}, {"message", "cancelled while queued"}}, 0,
                             now_seconds());
     } else if (auto it = live_.find(id); it != live_.end()) {
       it->second.cancel_requested = true;  // the executor notices at its next poll
@@ -569,13 +565,14 @@ std::vector<uint8_t> Service::preview(const std::string& database, const std::st
 }
 
 std::string Service::metrics() {
-  std::map<std::string, int> by_state{{"queued", 0}, {"running", 0}, {"succeeded", 0}, {"failed", 0}, {"cancelled", 0}};
-  for (const auto& j : store_->jobs()) ++by_state[j.state];
+  std::map<std::string, int> by_state;  // by name: the labels come out sorted
+  for (JobState s : kJobStates) by_state[to_string(s)] = 0;
+  for (const auto& j : store_->jobs()) ++by_state[to_string(j.state)];
   std::ostringstream m;
   m << "# HELP btfvq_jobs Jobs by state.\n# TYPE btfvq_jobs gauge\n";
   for (const auto& [state, n] : by_state) m << "btfvq_jobs{state=\"" << state << "\"} " << n << "\n";
   m << "# HELP btfvq_queue_length Jobs waiting for a worker.\n# TYPE btfvq_queue_length gauge\n"
-    << "btfvq_queue_length " << by_state["queued"] << "\n";
+    << "btfvq_queue_length " << by_state[to_string(JobState::queued)] << "\n";
   m << "# HELP btfvq_workers Configured worker count.\n# TYPE btfvq_workers gauge\nbtfvq_workers " << config_.workers
     << "\n";
   m << "# HELP btfvq_bytes_served_total Database bytes sent to clients.\n# TYPE btfvq_bytes_served_total counter\n"
@@ -595,7 +592,7 @@ std::string Service::metrics() {
 
 std::optional<JobRecord> Service::next_job() {
   // Oldest queued job whose database is idle: FIFO per database, parallel across databases.
-  for (auto& j : store_->jobs_in_state("queued"))
+  for (auto& j : store_->jobs_in_state(JobState::queued))
     if (!busy_databases_.count(j.database)) return j;
   return std::nullopt;
 }
@@ -611,11 +608,11 @@ void Service::worker_loop() {
       job = *next;
       busy_databases_.insert(job.database);
       job.started = now_seconds();
-      job.state = "running";
+      job.state = JobState::running;
       Live live;
       live.stage_started = job.started;
       live_[job.id] = live;
-      store_->set_job_state(job.id, "running", nullptr, job.started, 0);
+      store_->set_job_state(job.id, JobState::running, nullptr, job.started, 0);
       notify();
     }
     run(job);
@@ -687,11 +684,12 @@ void Service::run(const JobRecord& job) {
     std::error_code ec;
     fs::remove(tmp, ec);
   };
-  auto end_as = [&](const std::string& state, const json& error) {
+  auto end_as = [&](JobState state, const json& error) {
     remove_tmp();
     std::lock_guard lock(mutex_);
     if (auto it = live_.find(job.id); it != live_.end()) store_->set_job_progress(job.id, it->second.progress);
-    store_->set_job_state(job.id, state, error, state == "queued" ? 0 : job.started, state == "queued" ? 0 : now_seconds());
+    const bool requeued = state == JobState::queued;
+    store_->set_job_state(job.id, state, error, requeued ? 0 : job.started, requeued ? 0 : now_seconds());
   };
   auto cancel_requested = [&] {
     std::lock_guard lock(mutex_);
@@ -708,17 +706,17 @@ void Service::run(const JobRecord& job) {
   } catch (const CancelledError& e) {
     if (stopping_ && !cancel_requested()) {
       spdlog::warn("job {} interrupted by shutdown: re-queued", job.id);
-      end_as("queued", nullptr);
+      end_as(JobState::queued, nullptr);
     } else {
       spdlog::info("job {} cancelled", job.id);
-      end_as("cancelled", {{"code", "cancelled"}, {"message", e.what()}});
+      end_as(JobState::cancelled, {{"code", "cancelled"}, {"message", e.what()}});
     }
   } catch (const Error& e) {
     spdlog::warn("job {} failed: {}", job.id, e.what());
-    end_as("failed", {{"code", e.code()}, {"message", e.what()}});
+    end_as(JobState::failed, {{"code", e.code()}, {"message", e.what()}});
   } catch (const std::exception& e) {
     spdlog::error("job {} failed: {}", job.id, e.what());
-    end_as("failed", {{"code", "internal"}, {"message", e.what()}});
+    end_as(JobState::failed, {{"code", "internal"}, {"message", e.what()}});
   }
 }
 

@@ -90,7 +90,6 @@ class Service {
   nlohmann::json job(const std::string& id);
   nlohmann::json jobs();
   nlohmann::json cancel(const std::string& id);
-  static bool is_final(const std::string& state);
 
   // Change notification for event streams: blocks until something changed after `revision` or
   // `timeout` passed; returns the current revision.

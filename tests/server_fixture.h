@@ -190,7 +190,7 @@ inline json wait_final(server::Service& s, const std::string& id, double seconds
   const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
   for (;;) {
     json j = s.job(id);
-    if (server::Service::is_final(j["state"])) return j;
+    if (server::is_final(j["state"].get<server::JobState>())) return j;
     if (std::chrono::steady_clock::now() > until) FAIL("job " << id << " did not finish: " << j.dump());
     std::this_thread::sleep_for(std::chrono::milliseconds(5));
   }

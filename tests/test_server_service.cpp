@@ -40,7 +40,7 @@ TEST_CASE("the store keeps jobs, uploads and versions across a reopen") {
     CHECK(store.insert_job(job) == 1);
     job.id = "j2";
     CHECK(store.insert_job(job) == 2);
-    store.set_job_state("j1", "running", nullptr, 101, 0);
+    store.set_job_state("j1", server::JobState::running, nullptr, 101, 0);
     store.set_job_progress("j1", {{"stage", "phase2"}, {"fraction", 0.5}});
     store.insert_upload({"u1", 42, "abc", "complete", 5});
     store.publish({"db", 1, "databases/db/v1.btfdb", "ff", 7, json::array({{{"name", "m"}}}), "j2", 9}, 10);
@@ -49,9 +49,9 @@ TEST_CASE("the store keeps jobs, uploads and versions across a reopen") {
   const auto jobs = store.jobs();
   REQUIRE(jobs.size() == 2);
   CHECK(jobs[0].id == "j1");
-  CHECK(jobs[0].state == "running");
+  CHECK(jobs[0].state == server::JobState::running);
   CHECK(jobs[0].progress["stage"] == "phase2");
-  CHECK(jobs[1].state == "succeeded");
+  CHECK(jobs[1].state == server::JobState::succeeded);
   CHECK(jobs[1].version == 1);
   CHECK(jobs[1].finished == 10);
   REQUIRE(store.upload("u1"));
@@ -61,7 +61,7 @@ TEST_CASE("the store keeps jobs, uploads and versions across a reopen") {
   REQUIRE(versions.size() == 1);
   CHECK(versions[0].materials[0]["name"] == "m");
   CHECK(store.requeue_running() == std::vector<std::string>{"j1"});
-  CHECK(store.job("j1")->state == "queued");
+  CHECK(store.job("j1")->state == server::JobState::queued);
 }
 
 TEST_CASE("jobs on one database run in order; different databases run in parallel") {
@@ -138,7 +138,7 @@ TEST_CASE("a job left running by a killed server is re-queued and completes; lef
   }
   {  // What a kill -9 in the middle of the job leaves behind.
     server::Store store((dir / "btfvq.sqlite").string());
-    store.set_job_state(id, "running", nullptr, 1, 0);
+    store.set_job_state(id, server::JobState::running, nullptr, 1, 0);
     store.set_job_progress(id, {{"stage", "phase3"}, {"fraction", 0.7}});
   }
   fs::create_directories(dir / "databases" / "eps");
@@ -175,7 +175,7 @@ TEST_CASE("stopping the service puts a running job back in the queue; the next s
   }
   {
     server::Store store((dir / "btfvq.sqlite").string());
-    CHECK(store.job(id)->state == "queued");
+    CHECK(store.job(id)->state == server::JobState::queued);
   }
   FakeCompressor fake;
   fake.release();
