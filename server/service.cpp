@@ -2,9 +2,7 @@
 
 #include "pipeline/io/sample_io.h"
 
-#include <fcntl.h>
 #include <spdlog/spdlog.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
@@ -48,21 +46,6 @@ std::string sanitized_name(std::string s) {
     if (!std::isalnum(static_cast<unsigned char>(c)) && c != '.' && c != '_' && c != '-') c = '_';
   if (s.empty() || !std::isalnum(static_cast<unsigned char>(s[0]))) s = "m" + s;
   return s.substr(0, 64);
-}
-
-// fsync a file (or directory) so that a rename after it publishes complete bytes.
-void sync_path(const fs::path& p) {
-  const int fd = ::open(p.c_str(), O_RDONLY);
-  if (fd >= 0) {
-    ::fsync(fd);
-    ::close(fd);
-  }
-}
-
-void rename_durably(const fs::path& from, const fs::path& to) {
-  sync_path(from);
-  fs::rename(from, to);
-  sync_path(to.parent_path());
 }
 
 // ---- request validation: every rejection names the field ----
@@ -122,19 +105,15 @@ json version_json(const VersionRecord& v) {
 
 // ---------------------------------------------------------------- uploads
 
-UploadSink::UploadSink(Service& service, std::string id) : service_(service), id_(std::move(id)) {
-  tmp_ = service_.config_.data_dir / "uploads" / ("." + id_ + "." + random_hex(8) + ".part");
-  out_.open(tmp_, std::ios::binary | std::ios::trunc);
-  if (!out_) throw Error("io", "cannot create '" + tmp_.string() + "'");
+UploadSink::UploadSink(Service& service, std::string id)
+    : service_(service), id_(std::move(id)), file_(service_.upload_path(id_).string()) {
+  out_.open(file_.temp_path(), std::ios::binary | std::ios::trunc);
+  if (!out_) throw Error("io", "cannot create '" + file_.temp_path() + "'");
 }
 
 UploadSink::~UploadSink() {
   if (out_.is_open()) out_.close();
-  if (!done_) {
-    std::error_code ec;
-    fs::remove(tmp_, ec);
-    if (size_ > 0) spdlog::info("upload {} abandoned after {} bytes", id_, size_);
-  }
+  if (!done_ && size_ > 0) spdlog::info("upload {} abandoned after {} bytes", id_, size_);
   std::lock_guard lock(service_.mutex_);
   service_.uploading_.erase(id_);
 }
@@ -158,7 +137,7 @@ json UploadSink::finish(const std::string& expected_sha256) {
   const std::string sha = hash_.hex();
   if (!expected_sha256.empty() && expected_sha256 != sha)
     throw InputError("X-Sha256: the upload hashes to " + sha + ", not " + expected_sha256, "checksum_mismatch");
-  rename_durably(tmp_, service_.upload_path(id_));
+  file_.commit();
   UploadRecord record{id_, size_, sha, "complete", now_seconds()};
   service_.store_->insert_upload(record);
   done_ = true;
@@ -662,11 +641,18 @@ void Service::on_progress(const std::string& id, const JobProgress& p) {
 
 void Service::run(const JobRecord& job) {
   const JobSpec spec = parse_spec(job);
-  const fs::path dir = config_.data_dir / "databases" / job.database;
-  fs::create_directories(dir);
-  const fs::path tmp = dir / ("." + job.id + ".tmp");
   const auto versions = store_->versions(job.database);
   const std::string previous = versions.empty() ? std::string() : (config_.data_dir / versions.back().path).string();
+  // The version this job will publish. No other job picks the same number meanwhile: worker_loop
+  // runs one job per database at a time (busy_databases_), and the number moves on only when this
+  // job publishes.
+  VersionRecord next;
+  next.database = job.database;
+  next.version = versions.empty() ? 1 : versions.back().version + 1;
+  next.path = (fs::path("databases") / job.database / ("v" + std::to_string(next.version) + ".btfdb")).string();
+  next.materials = versions.empty() ? json::array() : versions.back().materials;
+  const fs::path output = config_.data_dir / next.path;
+  fs::create_directories(output.parent_path());
 
   JobContext ctx;
   ctx.progress = [this, id = job.id](const JobProgress& p) { on_progress(id, p); };
@@ -680,12 +666,14 @@ void Service::run(const JobRecord& job) {
     for (const auto& m : versions.back().materials) ctx.existing_materials.push_back(m.value("name", ""));
 
   spdlog::info("job {} running on database {}", job.id, job.database);
-  auto remove_tmp = [&] {
+  // An executor that failed after writing (or a cancel that came after it) must not leave an
+  // unlisted file where the version would be.
+  auto remove_output = [&] {
     std::error_code ec;
-    fs::remove(tmp, ec);
+    fs::remove(output, ec);
   };
   auto end_as = [&](JobState state, const json& error) {
-    remove_tmp();
+    remove_output();
     std::lock_guard lock(mutex_);
     if (auto it = live_.find(job.id); it != live_.end()) store_->set_job_progress(job.id, it->second.progress);
     const bool requeued = state == JobState::queued;
@@ -697,11 +685,11 @@ void Service::run(const JobRecord& job) {
     return it != live_.end() && it->second.cancel_requested;
   };
   try {
-    executor_(spec, previous, tmp.string(), ctx);
+    executor_(spec, previous, output.string(), ctx);
     if (cancel_requested()) throw CancelledError("cancelled by request");
     if (stopping_) throw CancelledError("server shutting down");
-    if (!fs::is_regular_file(tmp)) throw Error("internal", "the executor did not write the database");
-    publish(job, spec, tmp, ctx.added);
+    if (!fs::is_regular_file(output)) throw Error("internal", "the executor did not write the database");
+    publish(job, spec, std::move(next), ctx.added);
     spdlog::info("job {} succeeded", job.id);
   } catch (const CancelledError& e) {
     if (stopping_ && !cancel_requested()) {
@@ -720,16 +708,13 @@ void Service::run(const JobRecord& job) {
   }
 }
 
-void Service::publish(const JobRecord& job, const JobSpec& spec, const fs::path& tmp,
+// The executor wrote the version's file atomically at its final path: publishing is hashing it and
+// recording it.
+void Service::publish(const JobRecord& job, const JobSpec& spec, VersionRecord v,
                       const std::vector<MaterialRecord>& added) {
-  const auto versions = store_->versions(job.database);
-  VersionRecord v;
-  v.database = job.database;
-  v.version = versions.empty() ? 1 : versions.back().version + 1;
-  v.path = (fs::path("databases") / job.database / ("v" + std::to_string(v.version) + ".btfdb")).string();
-  v.sha256 = sha256_file(tmp.string());
-  v.size = fs::file_size(tmp);
-  v.materials = versions.empty() ? json::array() : versions.back().materials;
+  const fs::path file = config_.data_dir / v.path;
+  v.sha256 = sha256_file(file.string());
+  v.size = fs::file_size(file);
   std::vector<MaterialRecord> records = added;
   if (records.empty())  // an executor that reports nothing still added the job's materials
     for (const auto& m : spec.materials) records.push_back({m.name, 0, 0, 0, json::object()});
@@ -743,8 +728,6 @@ void Service::publish(const JobRecord& job, const JobSpec& spec, const fs::path&
                            {"report", m.report}});
   v.job = job.id;
   v.created = now_seconds();
-  const fs::path final_path = config_.data_dir / v.path;
-  rename_durably(tmp, final_path);
   std::lock_guard lock(mutex_);
   if (auto it = live_.find(job.id); it != live_.end()) {
     it->second.progress["fraction"] = 1.0;

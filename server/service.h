@@ -4,8 +4,9 @@
 // nothing about HTTP (routes.cpp is a thin shell over it) and nothing about compression (the
 // Executor does the work). Durable state lives in the Store; blobs in the data directory:
 //   <data>/btfvq.sqlite            jobs, uploads, versions
-//   <data>/uploads/<id>.upload     complete uploads (".part" while streaming)
-//   <data>/databases/<name>/v<N>.btfdb  published versions (".tmp" while a job writes)
+//   <data>/uploads/<id>.upload     complete uploads
+//   <data>/databases/<name>/v<N>.btfdb  published versions
+// Each file is written under a hidden temporary name beside it (pipeline/util/atomic_file.h).
 #include <nlohmann/json.hpp>
 
 #include <atomic>
@@ -25,6 +26,7 @@
 
 #include "pipeline/decode/preview.h"
 #include <btfvq/renderer_api.h>
+#include "pipeline/util/atomic_file.h"
 #include "pipeline/util/sha256.h"
 #include "server/executor.h"
 #include "server/store.h"
@@ -50,15 +52,15 @@ struct ContentInfo {
 
 class Service;
 
-// One upload being streamed to a temporary file. Destroying it without finish() removes the
-// temporary file, so an interrupted upload leaves nothing behind.
+// One upload being streamed to the temporary of an AtomicFile, so that an upload destroyed
+// without finish() (a broken connection, a bad checksum) leaves nothing behind.
 class UploadSink {
  public:
   ~UploadSink();
   // Appends bytes; returns false (and sets too_large()) once the size limit would be exceeded.
   bool write(const char* data, size_t size);
   bool too_large() const { return too_large_; }
-  // Verifies `expected_sha256` (if not empty), renames into place and records the upload.
+  // Verifies `expected_sha256` (if not empty), commits the file and records the upload.
   nlohmann::json finish(const std::string& expected_sha256);
 
  private:
@@ -66,8 +68,8 @@ class UploadSink {
   UploadSink(Service& service, std::string id);
   Service& service_;
   std::string id_;
-  std::filesystem::path tmp_;
-  std::ofstream out_;
+  AtomicFile file_;
+  std::ofstream out_;  // after file_: closed before the temporary is removed
   Sha256 hash_;
   uint64_t size_ = 0;
   bool too_large_ = false, done_ = false;
@@ -126,7 +128,7 @@ class Service {
   void worker_loop();
   std::optional<JobRecord> next_job();  // under mutex_
   void run(const JobRecord& job);
-  void publish(const JobRecord& job, const JobSpec& spec, const std::filesystem::path& tmp,
+  void publish(const JobRecord& job, const JobSpec& spec, VersionRecord version,
                const std::vector<MaterialRecord>& added);
   void on_progress(const std::string& id, const JobProgress& p);
   void finish_stage(Live& live, double now);

@@ -24,6 +24,7 @@
 
 #include <btfvq/error.h>
 #include "pipeline/io/sample_io.h"
+#include "pipeline/util/atomic_file.h"
 #include "pipeline/util/sha256.h"
 #include "server/http_server.h"
 #include "server/service.h"
@@ -174,7 +175,7 @@ struct FakeCompressor {
         bytes += "\n";
         ctx.added.push_back({m.name, uint64_t(m.size) * m.size * 81 * 81 * 3, m.size, m.size, json{{"fake", true}}});
       }
-      write_file(out, bytes);
+      write_file_atomically(out, bytes);
     };
   }
 };
