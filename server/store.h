@@ -4,6 +4,7 @@
 // All methods are thread-safe (one connection behind a mutex: the store is never the bottleneck).
 #include <nlohmann/json.hpp>
 
+#include <chrono>
 #include <cstdint>
 #include <mutex>
 #include <optional>
@@ -15,6 +16,11 @@
 struct sqlite3;
 
 namespace btfvq::server {
+
+// The clock of the records' timestamps: unix seconds.
+inline double now_seconds() {
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
 
 struct JobRecord {
   std::string id;
