@@ -5,6 +5,8 @@
 #include "server/errors.h"
 #include "server/store.h"
 
+#include <set>
+
 using namespace btfvq;
 using namespace btfvq::test;
 using server::Service;
@@ -27,6 +29,20 @@ int index_of(const std::vector<std::string>& log, const std::string& entry) {
 }
 
 }  // namespace
+
+TEST_CASE("job states have one name each, in the store and in the API") {
+  std::set<std::string> names;
+  for (server::JobState s : server::kJobStates) {
+    names.insert(server::to_string(s));
+    CHECK(server::parse_job_state(server::to_string(s)) == s);
+    CHECK(json(s).get<server::JobState>() == s);
+  }
+  CHECK(names == std::set<std::string>{"queued", "running", "succeeded", "failed", "cancelled"});
+  CHECK_THROWS_AS(server::parse_job_state("done"), CorruptError);
+  CHECK_FALSE(server::is_final(server::JobState::queued));
+  CHECK_FALSE(server::is_final(server::JobState::running));
+  CHECK(server::is_final(server::JobState::cancelled));
+}
 
 TEST_CASE("the store keeps jobs, uploads and versions across a reopen") {
   const fs::path dir = scratch_dir("store");
