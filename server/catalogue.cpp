@@ -101,7 +101,8 @@ NextVersion Catalogue::next_version(const std::string& database) {
   return next;
 }
 
-VersionRecord Catalogue::describe(VersionRecord v, const std::string& job, const std::vector<MaterialRecord>& added) const {
+VersionRecord Catalogue::describe(VersionRecord v, const std::string& job,
+                                  const std::vector<MaterialRecord>& added) const {
   const fs::path file = data_.root() / v.path;
   v.sha256 = sha256_file(file.string());
   v.size = fs::file_size(file);

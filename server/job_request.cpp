@@ -31,7 +31,9 @@ InputError invalid(const std::string& field, const std::string& why) {
   return InputError(field + ": " + why, "invalid_request");
 }
 
-std::string field_of(const std::string& where, const std::string& key) { return where.empty() ? key : where + "." + key; }
+std::string field_of(const std::string& where, const std::string& key) {
+  return where.empty() ? key : where + "." + key;
+}
 
 void only_keys(const json& obj, const std::string& where, std::initializer_list<const char*> allowed) {
   for (const auto& [key, value] : obj.items())
@@ -57,7 +59,8 @@ int64_t require_integer(const json& obj, const std::string& key, const std::stri
   if (!obj.contains(key)) throw invalid(field, "missing");
   const json& v = obj[key];
   if (!v.is_number_integer()) throw invalid(field, "must be an integer in " + range);
-  if (v.is_number_unsigned() && v.get<uint64_t>() > uint64_t(hi)) throw invalid(field, v.dump() + " is out of range " + range);
+  if (v.is_number_unsigned() && v.get<uint64_t>() > uint64_t(hi))
+    throw invalid(field, v.dump() + " is out of range " + range);
   const int64_t n = v.get<int64_t>();
   if (n < lo || n > hi) throw invalid(field, std::to_string(n) + " is out of range " + range);
   return n;
@@ -87,7 +90,10 @@ bool valid_name(const std::string& s) {
 }
 
 JobRequests::JobRequests(Store& store, DataDir data, fs::path input_root, uint64_t max_expanded_bytes)
-    : store_(store), data_(std::move(data)), input_root_(std::move(input_root)), max_expanded_bytes_(max_expanded_bytes) {}
+    : store_(store),
+      data_(std::move(data)),
+      input_root_(std::move(input_root)),
+      max_expanded_bytes_(max_expanded_bytes) {}
 
 json JobRequests::validate(const json& request, const std::string& id) const {
   require_object(request, "request body");

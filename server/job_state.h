@@ -18,7 +18,9 @@ const std::string& to_string(JobState state);
 JobState parse_job_state(const std::string& name);
 
 // Succeeded, failed and cancelled jobs never change again.
-inline bool is_final(JobState s) { return s == JobState::succeeded || s == JobState::failed || s == JobState::cancelled; }
+inline bool is_final(JobState s) {
+  return s == JobState::succeeded || s == JobState::failed || s == JobState::cancelled;
+}
 
 inline void to_json(nlohmann::json& j, JobState s) { j = to_string(s); }
 inline void from_json(const nlohmann::json& j, JobState& s) { s = parse_job_state(j.get<std::string>()); }

@@ -65,7 +65,8 @@ void HttpServer::install_handlers() {
       return httplib::Server::HandlerResponse::Unhandled;
     res.set_header("WWW-Authenticate", "Bearer");
     res.set_header("Connection", "close");
-    send_error(res, std::make_exception_ptr(UnauthorizedError("a valid 'Authorization: Bearer <token>' header is required")));
+    send_error(res, std::make_exception_ptr(
+                        UnauthorizedError("a valid 'Authorization: Bearer <token>' header is required")));
     return httplib::Server::HandlerResponse::Handled;
   });
 }
@@ -99,7 +100,9 @@ void HttpServer::install_routes() {
     const auto sink = svc.begin_upload(req.matches[1], header_number(req, "Content-Length"));
     send_json(res, receive_upload(req, reader, res, *sink), 201);
   });
-  s.Get(R"(/v1/uploads/([^/]+))", [&svc](const Request& req, Response& res) { send_json(res, svc.upload(req.matches[1])); });
+  s.Get(R"(/v1/uploads/([^/]+))", [&svc](const Request& req, Response& res) {
+    send_json(res, svc.upload(req.matches[1]));
+  });
 
   // ---- databases
   s.Get("/v1/databases", [&svc](const Request&, Response& res) { send_json(res, {{"databases", svc.databases()}}); });

@@ -67,7 +67,8 @@ class Service {
   ContentInfo content(const std::string& name, std::optional<int64_t> version) {
     return catalogue_.content(name, version);
   }
-  std::vector<uint8_t> preview(const std::string& database, const std::string& material, const PreviewOptions& options) {
+  std::vector<uint8_t> preview(const std::string& database, const std::string& material,
+                               const PreviewOptions& options) {
     return catalogue_.preview(database, material, options);
   }
 

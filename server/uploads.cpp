@@ -11,7 +11,10 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 UploadSink::UploadSink(Uploads& uploads, std::string id, std::shared_ptr<std::atomic<uint64_t>> progress)
-    : uploads_(uploads), id_(std::move(id)), file_(uploads_.data_.upload(id_).string()), progress_(std::move(progress)) {
+    : uploads_(uploads),
+      id_(std::move(id)),
+      file_(uploads_.data_.upload(id_).string()),
+      progress_(std::move(progress)) {
   out_.open(file_.temp_path(), std::ios::binary | std::ios::trunc);
   if (!out_) throw Error("io", "cannot create '" + file_.temp_path() + "'");
 }
