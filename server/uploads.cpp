@@ -13,14 +13,15 @@ using nlohmann::json;
 UploadSink::UploadSink(Uploads& uploads, std::string id, std::shared_ptr<std::atomic<uint64_t>> progress)
     : uploads_(uploads),
       id_(std::move(id)),
-      file_(uploads_.data_.upload(id_).string()),
+      file_(std::in_place, uploads_.data_.upload(id_).string()),
       progress_(std::move(progress)) {
-  out_.open(file_.temp_path(), std::ios::binary | std::ios::trunc);
-  if (!out_) throw Error("io", "cannot create '" + file_.temp_path() + "'");
+  out_.open(file_->temp_path(), std::ios::binary | std::ios::trunc);
+  if (!out_) throw Error("io", "cannot create '" + file_->temp_path() + "'");
 }
 
 UploadSink::~UploadSink() {
   if (out_.is_open()) out_.close();
+  file_.reset();
   if (!done_ && size_ > 0) spdlog::info("upload {} abandoned after {} bytes", id_, size_);
   uploads_.release(id_);
 }
@@ -46,7 +47,7 @@ json UploadSink::finish(const std::string& expected_sha256) {
   const std::string sha = hash_.hex();
   if (!expected_sha256.empty() && expected_sha256 != sha)
     throw InputError("X-Sha256: the upload hashes to " + sha + ", not " + expected_sha256, "checksum_mismatch");
-  file_.commit();
+  file_->commit();
   uploads_.store_.insert_upload({id_, size_, sha, "complete", now_seconds()});
   done_ = true;
   spdlog::info("upload {} complete: {} bytes, sha256 {}", id_, size_, sha);

@@ -38,8 +38,8 @@ class UploadSink {
   UploadSink(Uploads& uploads, std::string id, std::shared_ptr<std::atomic<uint64_t>> progress);
   Uploads& uploads_;
   std::string id_;
-  AtomicFile file_;
-  std::ofstream out_;  // after file_: closed before the temporary is removed
+  std::optional<AtomicFile> file_;  // reset before the id is released: a free id has no temporary
+  std::ofstream out_;
   Sha256 hash_;
   uint64_t size_ = 0;
   bool too_large_ = false, done_ = false;
