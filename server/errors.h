@@ -1,5 +1,5 @@
 #pragma once
-// Errors that only the HTTP shell raises. Each maps to one status code in routes.cpp.
+// Errors of the server beyond the library's. Each code has its status in http_errors.cpp.
 #include <btfvq/error.h>
 
 namespace btfvq::server {
@@ -20,6 +20,12 @@ class ForbiddenError : public Error {
 class ConflictError : public Error {
  public:
   explicit ConflictError(const std::string& m) : Error("conflict", m) {}
+};
+
+// A Range that starts past the end of the content: 416.
+class RangeNotSatisfiableError : public Error {
+ public:
+  explicit RangeNotSatisfiableError(const std::string& m) : Error("range_not_satisfiable", m) {}
 };
 
 // A body larger than the configured limit: 413.

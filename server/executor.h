@@ -1,7 +1,7 @@
 #pragma once
-// The seam between the job queue and the compressor. The service owns scheduling, durability and
-// publication; an Executor only turns a job's materials (plus the previous version of the target
-// database, if any) into a complete database file at `output_db_tmp_path`. The real executor
+// The seam between the job queue and the compressor. The service owns scheduling, version numbers
+// and publication; an Executor only turns a job's materials (plus the previous version of the
+// target database, if any) into a complete database file at `output_path`. The real executor
 // (pipeline_executor.cpp) calls compress_material(); tests plug in small lambdas.
 #include <nlohmann/json.hpp>
 
@@ -63,10 +63,12 @@ struct JobContext {
 };
 
 // Writes a complete database (the previous one, if any, plus the job's materials) to
-// `output_db_tmp_path`. Throws btfvq::Error subclasses (InputError -> job failed with that message,
-// CancelledError -> job cancelled). Must not publish or rename anything itself.
+// `output_path`, the file of the version the job will publish, atomically (AtomicFile,
+// pipeline/util/atomic_file.h): whether the executor returns or throws, the file there is complete
+// or absent, because the service hashes and records it as it is. Throws btfvq::Error subclasses
+// (InputError -> job failed with that message, CancelledError -> job cancelled).
 using Executor = std::function<void(const JobSpec&, const std::string& previous_db_path_or_empty,
-                                    const std::string& output_db_tmp_path, JobContext&)>;
+                                    const std::string& output_path, JobContext&)>;
 
 // The real executor (server/pipeline_executor.cpp once the pipeline links).
 Executor make_pipeline_executor();

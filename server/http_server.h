@@ -1,6 +1,7 @@
 #pragma once
-// The HTTP shell over the Service: REST routes under /v1 (docs/api.md), bearer-token check, and
-// the one mapping from btfvq::Error subclasses to status codes and JSON error bodies.
+// The HTTP shell over the Service: REST routes under /v1 (docs/api.md), each a line or two over
+// the helpers of http_requests.h and http_responses.h, behind the bearer-token check; errors reach
+// the client through http_errors.h.
 #include <atomic>
 #include <memory>
 #include <string>
@@ -33,6 +34,7 @@ class HttpServer {
   void stop();
 
  private:
+  void install_handlers();  // errors and authentication, around every route
   void install_routes();
   Service& service_;
   HttpOptions options_;
@@ -40,8 +42,5 @@ class HttpServer {
   std::thread thread_;
   std::atomic<bool> stopping_{false};
 };
-
-// Maps an exception to (status, {"error": {"code", "message"}}). Exposed for tests.
-std::pair<int, std::string> error_response(std::exception_ptr error);
 
 }  // namespace btfvq::server

@@ -4,6 +4,7 @@
 
 #include "pipeline/util/config.h"
 #include <btfvq/error.h>
+#include "server/numbers.h"
 
 namespace btfvq::server {
 
@@ -12,16 +13,9 @@ std::pair<std::string, int> parse_listen(const std::string& value, const std::st
   if (colon == std::string::npos || colon == 0)
     throw ConfigError(what + ": '" + value + "' is not HOST:PORT");
   const std::string port = value.substr(colon + 1);
-  size_t used = 0;
-  long n = -1;
-  try {
-    n = std::stol(port, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  if (used == 0 || used != port.size() || n < 0 || n > 65535)
-    throw ConfigError(what + ": port '" + port + "' is not in 0..65535");
-  return {value.substr(0, colon), int(n)};
+  const auto n = whole_integer(port);
+  if (!n || *n < 0 || *n > 65535) throw ConfigError(what + ": port '" + port + "' is not in 0..65535");
+  return {value.substr(0, colon), int(*n)};
 }
 
 ServerConfig load_server_config(const ServerFlags& flags) {

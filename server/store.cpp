@@ -59,7 +59,7 @@ JobRecord read_job(const Statement& s) {
   j.seq = s.integer(1);
   j.database = s.text(2);
   j.spec = parse_or_null(s.text(3));
-  j.state = s.text(4);
+  j.state = parse_job_state(s.text(4));
   j.progress = parse_or_null(s.text(5));
   j.error = parse_or_null(s.text(6));
   j.created = s.real(7);
@@ -120,7 +120,7 @@ int64_t Store::insert_job(const JobRecord& j) {
   next.step();
   const int64_t seq = next.integer(0);
   Statement s(db_, "INSERT INTO jobs (id, seq, database, spec, state, progress, error, created) VALUES (?,?,?,?,?,?,?,?)");
-  s.bind(j.id).bind(seq).bind(j.database).bind(j.spec.dump()).bind(j.state).bind(j.progress.dump())
+  s.bind(j.id).bind(seq).bind(j.database).bind(j.spec.dump()).bind(to_string(j.state)).bind(j.progress.dump())
       .bind(j.error.is_null() ? std::string() : j.error.dump()).bind(j.created);
   s.step();
   return seq;
@@ -142,20 +142,20 @@ std::vector<JobRecord> Store::jobs() {
   return out;
 }
 
-std::vector<JobRecord> Store::jobs_in_state(const std::string& state) {
+std::vector<JobRecord> Store::jobs_in_state(JobState state) {
   std::lock_guard lock(mutex_);
   Statement s(db_, std::string("SELECT ") + kJobColumns + " FROM jobs WHERE state = ? ORDER BY seq");
-  s.bind(state);
+  s.bind(to_string(state));
   std::vector<JobRecord> out;
   while (s.step()) out.push_back(read_job(s));
   return out;
 }
 
-void Store::set_job_state(const std::string& id, const std::string& state, const json& error, double started,
+void Store::set_job_state(const std::string& id, JobState state, const json& error, double started,
                           double finished) {
   std::lock_guard lock(mutex_);
   Statement s(db_, "UPDATE jobs SET state = ?, error = ?, started = ?, finished = ? WHERE id = ?");
-  s.bind(state).bind(error.is_null() ? std::string() : error.dump()).bind(started).bind(finished).bind(id);
+  s.bind(to_string(state)).bind(error.is_null() ? std::string() : error.dump()).bind(started).bind(finished).bind(id);
   s.step();
 }
 
@@ -170,10 +170,13 @@ std::vector<std::string> Store::requeue_running() {
   std::lock_guard lock(mutex_);
   std::vector<std::string> ids;
   {
-    Statement s(db_, "SELECT id FROM jobs WHERE state = 'running' ORDER BY seq");
+    Statement s(db_, "SELECT id FROM jobs WHERE state = ? ORDER BY seq");
+    s.bind(to_string(JobState::running));
     while (s.step()) ids.push_back(s.text(0));
   }
-  exec("UPDATE jobs SET state = 'queued', started = 0, progress = '{}' WHERE state = 'running'");
+  Statement s(db_, "UPDATE jobs SET state = ?, started = 0, progress = '{}' WHERE state = ?");
+  s.bind(to_string(JobState::queued)).bind(to_string(JobState::running));
+  s.step();
   return ids;
 }
 
@@ -209,8 +212,8 @@ void Store::publish(const VersionRecord& v, double finished) {
     s.bind(v.database).bind(v.version).bind(v.path).bind(v.sha256).bind(int64_t(v.size)).bind(v.materials.dump())
         .bind(v.job).bind(v.created);
     s.step();
-    Statement j(db_, "UPDATE jobs SET state = 'succeeded', error = '', finished = ?, version = ? WHERE id = ?");
-    j.bind(finished).bind(v.version).bind(v.job);
+    Statement j(db_, "UPDATE jobs SET state = ?, error = '', finished = ?, version = ? WHERE id = ?");
+    j.bind(to_string(JobState::succeeded)).bind(finished).bind(v.version).bind(v.job);
     j.step();
     exec("COMMIT");
   } catch (...) {

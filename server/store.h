@@ -4,22 +4,30 @@
 // All methods are thread-safe (one connection behind a mutex: the store is never the bottleneck).
 #include <nlohmann/json.hpp>
 
+#include <chrono>
 #include <cstdint>
 #include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
 
+#include "server/job_state.h"
+
 struct sqlite3;
 
 namespace btfvq::server {
+
+// The clock of the records' timestamps: unix seconds.
+inline double now_seconds() {
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
 
 struct JobRecord {
   std::string id;
   int64_t seq = 0;                  // submission order (assigned by the store)
   std::string database;
   nlohmann::json spec;              // the validated request
-  std::string state = "queued";     // queued, running, succeeded, failed, cancelled
+  JobState state = JobState::queued;
   nlohmann::json progress = nlohmann::json::object();
   nlohmann::json error;             // null or {"code", "message"}
   double created = 0, started = 0, finished = 0;  // unix seconds; 0 = not yet
@@ -56,8 +64,8 @@ class Store {
   int64_t insert_job(const JobRecord& job);  // returns seq
   std::optional<JobRecord> job(const std::string& id);
   std::vector<JobRecord> jobs();  // in submission order
-  std::vector<JobRecord> jobs_in_state(const std::string& state);
-  void set_job_state(const std::string& id, const std::string& state, const nlohmann::json& error,
+  std::vector<JobRecord> jobs_in_state(JobState state);
+  void set_job_state(const std::string& id, JobState state, const nlohmann::json& error,
                      double started, double finished);
   void set_job_progress(const std::string& id, const nlohmann::json& progress);
   // Recovery: every 'running' job goes back to 'queued'; returns their ids.

@@ -24,6 +24,7 @@
 
 #include <btfvq/error.h>
 #include "pipeline/io/sample_io.h"
+#include "pipeline/util/atomic_file.h"
 #include "pipeline/util/sha256.h"
 #include "server/http_server.h"
 #include "server/service.h"
@@ -174,7 +175,7 @@ struct FakeCompressor {
         bytes += "\n";
         ctx.added.push_back({m.name, uint64_t(m.size) * m.size * 81 * 81 * 3, m.size, m.size, json{{"fake", true}}});
       }
-      write_file(out, bytes);
+      write_file_atomically(out, bytes);
     };
   }
 };
@@ -190,7 +191,7 @@ inline json wait_final(server::Service& s, const std::string& id, double seconds
   const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
   for (;;) {
     json j = s.job(id);
-    if (server::Service::is_final(j["state"])) return j;
+    if (server::is_final(j["state"].get<server::JobState>())) return j;
     if (std::chrono::steady_clock::now() > until) FAIL("job " << id << " did not finish: " << j.dump());
     std::this_thread::sleep_for(std::chrono::milliseconds(5));
   }

@@ -8,6 +8,9 @@
 
 #include <regex>
 
+#include "server/errors.h"
+#include "server/http_errors.h"
+
 using namespace btfvq;
 using namespace btfvq::test;
 
@@ -57,6 +60,53 @@ void send_and_vanish(int port, const std::string& bytes) {
 
 
 }  // namespace
+
+TEST_CASE("every error reaches the client with the status and code of docs/api.md") {
+  struct Case {
+    std::exception_ptr error;
+    int status;
+    std::string code;
+  };
+  auto e = [](auto error) { return std::make_exception_ptr(error); };
+  const std::vector<Case> cases = {
+      {e(InputError("x")), 400, "invalid_input"},
+      {e(InputError("x", "invalid_request")), 400, "invalid_request"},
+      {e(InputError("x", "checksum_mismatch")), 400, "checksum_mismatch"},
+      {e(ConfigError("x")), 400, "invalid_config"},
+      {e(server::UnauthorizedError("x")), 401, "unauthorized"},
+      {e(server::ForbiddenError("x")), 403, "forbidden"},
+      {e(NotFoundError("x")), 404, "not_found"},
+      {e(server::ConflictError("x")), 409, "conflict"},
+      {e(CancelledError("x")), 409, "cancelled"},
+      {e(server::TooLargeError("x")), 413, "too_large"},
+      {e(server::RangeNotSatisfiableError("x")), 416, "range_not_satisfiable"},
+      {e(CorruptError("x")), 500, "corrupt"},
+      {e(DeviceError("x")), 500, "device"},
+      {e(Error("io", "x")), 500, "io"},
+      {e(Error("store", "x")), 500, "store"},
+      {e(Error("unavailable", "x")), 503, "unavailable"},
+      {e(std::runtime_error("x")), 500, "internal"},
+  };
+  for (const auto& c : cases) {
+    CAPTURE(c.code);
+    const auto [status, body] = server::error_response(c.error);
+    CHECK(status == c.status);
+    CHECK(json::parse(body) == json{{"error", {{"code", c.code}, {"message", "x"}}}});
+  }
+  json never;
+  try {
+    never = json::parse("{");
+  } catch (...) {
+    const auto [status, body] = server::error_response(std::current_exception());
+    CHECK(status == 400);
+    CHECK(json::parse(body)["error"]["code"] == "invalid_json");
+  }
+  CHECK(server::code_of_status(404) == "not_found");
+  CHECK(server::code_of_status(413) == "too_large");
+  CHECK(server::code_of_status(416) == "range_not_satisfiable");
+  CHECK(server::code_of_status(400) == "http_400");
+  CHECK(server::code_of_status(409) == "http_409");
+}
 
 TEST_CASE("health, unknown routes and the error shape") {
   TestServer t("http-basic");

@@ -5,6 +5,8 @@
 #include "server/errors.h"
 #include "server/store.h"
 
+#include <set>
+
 using namespace btfvq;
 using namespace btfvq::test;
 using server::Service;
@@ -28,6 +30,20 @@ int index_of(const std::vector<std::string>& log, const std::string& entry) {
 
 }  // namespace
 
+TEST_CASE("job states have one name each, in the store and in the API") {
+  std::set<std::string> names;
+  for (server::JobState s : server::kJobStates) {
+    names.insert(server::to_string(s));
+    CHECK(server::parse_job_state(server::to_string(s)) == s);
+    CHECK(json(s).get<server::JobState>() == s);
+  }
+  CHECK(names == std::set<std::string>{"queued", "running", "succeeded", "failed", "cancelled"});
+  CHECK_THROWS_AS(server::parse_job_state("done"), CorruptError);
+  CHECK_FALSE(server::is_final(server::JobState::queued));
+  CHECK_FALSE(server::is_final(server::JobState::running));
+  CHECK(server::is_final(server::JobState::cancelled));
+}
+
 TEST_CASE("the store keeps jobs, uploads and versions across a reopen") {
   const fs::path dir = scratch_dir("store");
   {
@@ -40,7 +56,7 @@ TEST_CASE("the store keeps jobs, uploads and versions across a reopen") {
     CHECK(store.insert_job(job) == 1);
     job.id = "j2";
     CHECK(store.insert_job(job) == 2);
-    store.set_job_state("j1", "running", nullptr, 101, 0);
+    store.set_job_state("j1", server::JobState::running, nullptr, 101, 0);
     store.set_job_progress("j1", {{"stage", "phase2"}, {"fraction", 0.5}});
     store.insert_upload({"u1", 42, "abc", "complete", 5});
     store.publish({"db", 1, "databases/db/v1.btfdb", "ff", 7, json::array({{{"name", "m"}}}), "j2", 9}, 10);
@@ -49,9 +65,9 @@ TEST_CASE("the store keeps jobs, uploads and versions across a reopen") {
   const auto jobs = store.jobs();
   REQUIRE(jobs.size() == 2);
   CHECK(jobs[0].id == "j1");
-  CHECK(jobs[0].state == "running");
+  CHECK(jobs[0].state == server::JobState::running);
   CHECK(jobs[0].progress["stage"] == "phase2");
-  CHECK(jobs[1].state == "succeeded");
+  CHECK(jobs[1].state == server::JobState::succeeded);
   CHECK(jobs[1].version == 1);
   CHECK(jobs[1].finished == 10);
   REQUIRE(store.upload("u1"));
@@ -61,7 +77,7 @@ TEST_CASE("the store keeps jobs, uploads and versions across a reopen") {
   REQUIRE(versions.size() == 1);
   CHECK(versions[0].materials[0]["name"] == "m");
   CHECK(store.requeue_running() == std::vector<std::string>{"j1"});
-  CHECK(store.job("j1")->state == "queued");
+  CHECK(store.job("j1")->state == server::JobState::queued);
 }
 
 TEST_CASE("jobs on one database run in order; different databases run in parallel") {
@@ -138,7 +154,7 @@ TEST_CASE("a job left running by a killed server is re-queued and completes; lef
   }
   {  // What a kill -9 in the middle of the job leaves behind.
     server::Store store((dir / "btfvq.sqlite").string());
-    store.set_job_state(id, "running", nullptr, 1, 0);
+    store.set_job_state(id, server::JobState::running, nullptr, 1, 0);
     store.set_job_progress(id, {{"stage", "phase3"}, {"fraction", 0.7}});
   }
   fs::create_directories(dir / "databases" / "eps");
@@ -175,7 +191,7 @@ TEST_CASE("stopping the service puts a running job back in the queue; the next s
   }
   {
     server::Store store((dir / "btfvq.sqlite").string());
-    CHECK(store.job(id)->state == "queued");
+    CHECK(store.job(id)->state == server::JobState::queued);
   }
   FakeCompressor fake;
   fake.release();

@@ -1,0 +1,32 @@
+#pragma once
+// The layout of the server's data directory, the one place that names its files:
+//   <data>/btfvq.sqlite                  jobs, uploads, versions (the Store)
+//   <data>/uploads/<id>.upload           complete uploads
+//   <data>/databases/<name>/v<N>.btfdb   published versions
+// Each file is written under a hidden temporary name beside it (pipeline/util/atomic_file.h), so a
+// file there that the store does not list is a leftover of a crash.
+#include <cstdint>
+#include <filesystem>
+#include <string>
+
+namespace btfvq::server {
+
+class DataDir {
+ public:
+  explicit DataDir(std::filesystem::path root) : root_(std::move(root)) {}
+
+  const std::filesystem::path& root() const { return root_; }
+  std::filesystem::path store() const { return root_ / "btfvq.sqlite"; }
+  std::filesystem::path uploads() const { return root_ / "uploads"; }
+  std::filesystem::path upload(const std::string& id) const { return uploads() / (id + ".upload"); }
+  std::filesystem::path databases() const { return root_ / "databases"; }
+  // Relative to the root, as the store records it, so that a data directory can be moved.
+  static std::string version(const std::string& database, int64_t n) {
+    return (std::filesystem::path("databases") / database / ("v" + std::to_string(n) + ".btfdb")).string();
+  }
+
+ private:
+  std::filesystem::path root_;
+};
+
+}  // namespace btfvq::server

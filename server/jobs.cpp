@@ -1,0 +1,316 @@
+#include "server/jobs.h"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+
+#include <btfvq/error.h>
+#include "server/errors.h"
+
+namespace btfvq::server {
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace {
+
+std::string random_hex(size_t n) {
+  static thread_local std::mt19937_64 rng{std::random_device{}()};
+  static const char* digits = "0123456789abcdef";
+  std::string s;
+  for (size_t i = 0; i < n; ++i) s += digits[rng() & 15];
+  return s;
+}
+
+}  // namespace
+
+JobQueue::JobQueue(Store& store, Catalogue& catalogue, const JobRequests& requests, Executor executor,
+                   uint64_t max_expanded_bytes)
+    : store_(store),
+      catalogue_(catalogue),
+      requests_(requests),
+      executor_(std::move(executor)),
+      max_expanded_bytes_(max_expanded_bytes) {}
+
+JobQueue::~JobQueue() { stop(); }
+
+// ---------------------------------------------------------------- lifecycle
+
+void JobQueue::requeue_interrupted() {
+  for (const auto& id : store_.requeue_running()) spdlog::warn("job {} was running when the server stopped: re-queued", id);
+}
+
+void JobQueue::start(int workers) {
+  for (int i = 0; i < workers; ++i) workers_.emplace_back([this] { worker_loop(); });
+}
+
+void JobQueue::stop() {
+  {
+    std::lock_guard lock(mutex_);
+    if (stopping_ && workers_.empty()) return;
+    stopping_ = true;
+    notify();
+  }
+  work_cv_.notify_all();
+  for (auto& t : workers_) t.join();
+  workers_.clear();
+}
+
+void JobQueue::notify() {
+  ++revision_;
+  change_cv_.notify_all();
+}
+
+uint64_t JobQueue::revision() {
+  std::lock_guard lock(mutex_);
+  return revision_;
+}
+
+uint64_t JobQueue::wait_for_change(uint64_t revision, std::chrono::milliseconds timeout) {
+  std::unique_lock lock(mutex_);
+  change_cv_.wait_for(lock, timeout, [&] { return revision_ != revision || stopping_; });
+  return revision_;
+}
+
+std::map<std::string, double> JobQueue::stage_seconds() {
+  std::lock_guard lock(mutex_);
+  return stage_seconds_;
+}
+
+// ---------------------------------------------------------------- submission and views
+
+json JobQueue::submit(const json& request) {
+  JobRecord job;
+  job.id = "j" + random_hex(15);
+  job.spec = requests_.validate(request, job.id);
+  job.database = job.spec["database"];
+  job.created = now_seconds();
+  {
+    std::lock_guard lock(mutex_);
+    if (stopping_) throw Error("unavailable", "the server is shutting down");
+    job.seq = store_.insert_job(job);
+    notify();
+  }
+  work_cv_.notify_all();
+  spdlog::info("job {} queued for database {} ({} material(s))", job.id, job.database, job.spec["materials"].size());
+  return this->job(job.id);
+}
+
+json JobQueue::job_json(const JobRecord& job) {
+  json progress = job.progress.is_object() ? job.progress : json::object();
+  if (auto it = live_.find(job.id); it != live_.end()) progress = it->second.progress;
+  const double end = job.finished > 0 ? job.finished : now_seconds();
+  const double elapsed = job.started > 0 ? std::max(0.0, end - job.started) : 0.0;
+  const double fraction = progress.value("fraction", job.state == JobState::succeeded ? 1.0 : 0.0);
+  json eta = nullptr;
+  if (job.state == JobState::running && fraction > 0.001) eta = elapsed * (1 - fraction) / fraction;
+  json materials = json::array();
+  for (const auto& m : job.spec["materials"]) materials.push_back(m["name"]);
+  return {{"id", job.id},
+          {"database", job.database},
+          {"state", job.state},
+          {"stage", progress.value("stage", "")},
+          {"phase", progress.value("phase", 0)},
+          {"fraction", fraction},
+          {"material", progress.value("material", "")},
+          {"texels_done", progress.value("texels_done", uint64_t(0))},
+          {"texels_total", progress.value("texels_total", uint64_t(0))},
+          {"codebook_sizes", progress.value("codebook_sizes", json(CodebookSizes{}))},
+          {"created", job.created},
+          {"started", job.started > 0 ? json(job.started) : json()},
+          {"finished", job.finished > 0 ? json(job.finished) : json()},
+          {"elapsed_s", elapsed},
+          {"eta_s", eta},
+          {"error", job.error},
+          {"version", job.version > 0 ? json(job.version) : json()},
+          {"materials", materials},
+          {"request", job.spec}};
+}
+
+// Store reads happen under mutex_ so that a record and the live progress are one snapshot.
+json JobQueue::job(const std::string& id) {
+  std::lock_guard lock(mutex_);
+  auto record = store_.job(id);
+  if (!record) throw NotFoundError("no job '" + id + "'");
+  return job_json(*record);
+}
+
+json JobQueue::jobs() {
+  std::lock_guard lock(mutex_);
+  json out = json::array();
+  for (const auto& r : store_.jobs()) {
+    json j = job_json(r);
+    j.erase("request");
+    out.push_back(j);
+  }
+  return out;
+}
+
+json JobQueue::cancel(const std::string& id) {
+  {
+    std::lock_guard lock(mutex_);
+    auto record = store_.job(id);
+    if (!record) throw NotFoundError("no job '" + id + "'");
+    if (is_final(record->state)) throw ConflictError("job '" + id + "' is already " + to_string(record->state));
+    if (record->state == JobState::queued) {
+      store_.set_job_state(id, JobState::cancelled, json{{"code", "cancelled"}, {"message", "cancelled while queued"}}, 0,
+                           now_seconds());
+    } else if (auto it = live_.find(id); it != live_.end()) {
+      it->second.cancel_requested = true;  // the executor notices at its next poll
+    }
+    notify();
+  }
+  spdlog::info("job {}: cancel requested", id);
+  return job(id);
+}
+
+// ---------------------------------------------------------------- workers
+
+std::optional<JobRecord> JobQueue::next_job() {
+  for (auto& j : store_.jobs_in_state(JobState::queued))
+    if (!busy_databases_.count(j.database)) return j;
+  return std::nullopt;
+}
+
+void JobQueue::worker_loop() {
+  for (;;) {
+    JobRecord job;
+    {
+      std::unique_lock lock(mutex_);
+      std::optional<JobRecord> next;
+      work_cv_.wait(lock, [&] { return stopping_ || (next = next_job()).has_value(); });
+      if (stopping_) return;
+      job = begin_running(std::move(*next));
+    }
+    run(job);
+    end_running(job);
+    work_cv_.notify_all();
+  }
+}
+
+// The database is busy until end_running(): its next job waits, and so does its version number.
+JobRecord JobQueue::begin_running(JobRecord job) {
+  busy_databases_.insert(job.database);
+  job.started = now_seconds();
+  job.state = JobState::running;
+  Live live;
+  live.stage_started = job.started;
+  live_[job.id] = live;
+  store_.set_job_state(job.id, JobState::running, nullptr, job.started, 0);
+  notify();
+  return job;
+}
+
+void JobQueue::end_running(const JobRecord& job) {
+  std::lock_guard lock(mutex_);
+  busy_databases_.erase(job.database);
+  if (auto it = live_.find(job.id); it != live_.end()) {
+    finish_stage(it->second, now_seconds());
+    live_.erase(it);
+  }
+  notify();
+}
+
+void JobQueue::finish_stage(Live& live, double now) {
+  if (!live.stage.empty()) stage_seconds_[live.stage] += now - live.stage_started;
+  live.stage_started = now;
+}
+
+void JobQueue::on_progress(const std::string& id, const JobProgress& p) {
+  std::lock_guard lock(mutex_);
+  auto it = live_.find(id);
+  if (it == live_.end()) return;
+  Live& live = it->second;
+  const double now = now_seconds();
+  const bool stage_changed = p.stage != live.stage;
+  if (stage_changed) {
+    finish_stage(live, now);
+    live.stage = p.stage;
+  }
+  live.progress = {{"stage", p.stage},
+                   {"phase", p.phase},
+                   {"fraction", std::isfinite(p.fraction) ? std::clamp(p.fraction, 0.0, 1.0) : 0.0},
+                   {"texels_done", p.texels_done},
+                   {"texels_total", p.texels_total},
+                   {"codebook_sizes", p.codebook_sizes},
+                   {"material", p.material}};
+  if (stage_changed || now - live.last_persisted > 1.0) {
+    store_.set_job_progress(id, live.progress);
+    live.last_persisted = now;
+  }
+  notify();
+}
+
+bool JobQueue::cancel_requested(const std::string& id) {
+  std::lock_guard lock(mutex_);
+  auto it = live_.find(id);
+  return it != live_.end() && it->second.cancel_requested;
+}
+
+JobContext JobQueue::context(const std::string& id, const NextVersion& next) {
+  JobContext ctx;
+  ctx.progress = [this, id](const JobProgress& p) { on_progress(id, p); };
+  ctx.cancelled = [this, id] { return stopping_ || cancel_requested(id); };
+  ctx.max_expanded_bytes = max_expanded_bytes_;
+  ctx.existing_materials = next.existing;
+  return ctx;
+}
+
+void JobQueue::run(const JobRecord& job) {
+  const JobSpec spec = requests_.spec(job);
+  // No other job picks the same version number meanwhile: see begin_running().
+  NextVersion next = catalogue_.next_version(job.database);
+  fs::create_directories(next.file.parent_path());
+  JobContext ctx = context(job.id, next);
+  spdlog::info("job {} running on database {}", job.id, job.database);
+  try {
+    executor_(spec, next.previous_file, next.file.string(), ctx);
+    if (cancel_requested(job.id)) throw CancelledError("cancelled by request");
+    if (stopping_) throw CancelledError("server shutting down");
+    if (!fs::is_regular_file(next.file)) throw Error("internal", "the executor did not write the database");
+    publish(job, spec, std::move(next.record), ctx.added);
+    spdlog::info("job {} succeeded", job.id);
+  } catch (const CancelledError& e) {
+    if (stopping_ && !cancel_requested(job.id)) {
+      spdlog::warn("job {} interrupted by shutdown: re-queued", job.id);
+      end(job, JobState::queued, nullptr, next.file);
+    } else {
+      spdlog::info("job {} cancelled", job.id);
+      end(job, JobState::cancelled, {{"code", "cancelled"}, {"message", e.what()}}, next.file);
+    }
+  } catch (const Error& e) {
+    spdlog::warn("job {} failed: {}", job.id, e.what());
+    end(job, JobState::failed, {{"code", e.code()}, {"message", e.what()}}, next.file);
+  } catch (const std::exception& e) {
+    spdlog::error("job {} failed: {}", job.id, e.what());
+    end(job, JobState::failed, {{"code", "internal"}, {"message", e.what()}}, next.file);
+  }
+}
+
+void JobQueue::publish(const JobRecord& job, const JobSpec& spec, VersionRecord next,
+                       const std::vector<MaterialRecord>& added) {
+  std::vector<MaterialRecord> records = added;
+  if (records.empty())  // an executor that reports nothing still added the job's materials
+    for (const auto& m : spec.materials) records.push_back({m.name, 0, 0, 0, json::object()});
+  const VersionRecord v = catalogue_.describe(std::move(next), job.id, records);
+  std::lock_guard lock(mutex_);
+  if (auto it = live_.find(job.id); it != live_.end()) {
+    it->second.progress["fraction"] = 1.0;
+    store_.set_job_progress(job.id, it->second.progress);
+  }
+  store_.publish(v, now_seconds());  // the version and the job's success, in one transaction
+}
+
+// A cancel that came after the executor wrote, or an executor that failed after writing, must not
+// leave a file where the version would be.
+void JobQueue::end(const JobRecord& job, JobState state, const json& error, const fs::path& output) {
+  std::error_code ec;
+  fs::remove(output, ec);
+  std::lock_guard lock(mutex_);
+  if (auto it = live_.find(job.id); it != live_.end()) store_.set_job_progress(job.id, it->second.progress);
+  const bool requeued = state == JobState::queued;
+  store_.set_job_state(job.id, state, error, requeued ? 0 : job.started, requeued ? 0 : now_seconds());
+}
+
+}  // namespace btfvq::server
