@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <set>
 
+#include "pipeline/format/database.h"
 #include "pipeline/util/sha256.h"
 #include <btfvq/error.h>
 
@@ -24,7 +25,7 @@ json version_json(const VersionRecord& v) {
           {"job", v.job},
           {"materials", v.materials},
           {"raw_bytes", raw},
-          {"ratio", v.size > 0 ? double(raw) / double(v.size) : 0.0}};
+          {"ratio", compression_ratio(raw, v.size)}};
 }
 
 }  // namespace

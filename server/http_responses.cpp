@@ -53,9 +53,11 @@ void send_file(const httplib::Request& req, httplib::Response& res, const Conten
                              file->seekg(std::streamoff(offset));
                              file->read(buffer.data(), std::streamsize(buffer.size()));
                              const size_t got = size_t(file->gcount());
-                             if (got == 0 || !sink.write(buffer.data(), got)) return false;
+                             if (got == 0) return false;
+                             // Counted before the write: a client that has the bytes must see them
+                             // in /metrics (after the write, the count raced the client's next request).
                              on_sent(got);
-                             return true;
+                             return sink.write(buffer.data(), got);
                            });
 }
 
