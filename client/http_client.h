@@ -9,13 +9,13 @@
 #include <memory>
 #include <string>
 
+#include "pipeline/util/args.h"
+
 namespace httplib {
 class Client;
 }
 
 namespace btfvq::cli {
-
-class Args;
 
 struct Remote {
   std::string url;    // http://host:port
