@@ -98,6 +98,9 @@ TEST_CASE("btfvq --help, -h and help list every command; each command's --help s
     CHECK(run("btfvq " + name + " -h") == help);
     CHECK(run("btfvq help " + name) == help);
   }
+  const std::string render = run("btfvq render --help");
+  for (const char* option : {"--material NAME", "--scene sphere|plane", "--size N", "--env"})
+    CHECK(render.find(option) != std::string::npos);
 }
 
 TEST_CASE("btfvq rejects an unknown option with status 2 and names the command") {
