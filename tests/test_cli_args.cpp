@@ -111,3 +111,15 @@ TEST_CASE("btfvq rejects an unknown option with status 2 and names the command")
   CHECK(run("btfvq nosuch", &status).find("unknown command 'nosuch'") != std::string::npos);
   CHECK(status == 2);
 }
+
+TEST_CASE("btfvq-server --help lists its options; a stray argument is refused before it starts") {
+  int status = -1;
+  const std::string help = run("btfvq-server --help", &status);
+  CHECK(status == 0);
+  for (const char* option : {"--listen HOST:PORT", "--data DIR", "--config FILE", "--input-root DIR", "--workers N"})
+    CHECK(help.find(option) != std::string::npos);
+  CHECK(run("btfvq-server stray", &status).find("unexpected argument 'stray' for 'btfvq-server'") != std::string::npos);
+  CHECK(status == 2);
+  CHECK(run("btfvq-server --workers", &status).find("--workers needs a value") != std::string::npos);
+  CHECK(status == 2);
+}
