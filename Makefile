@@ -11,7 +11,7 @@ DEB_PACKAGES = build-essential cmake pkg-config \
   libopenimageio-dev libspdlog-dev nlohmann-json3-dev libcpp-httplib-dev doctest-dev \
   libsqlite3-dev libarchive-dev libeigen3-dev libzstd-dev unzip curl python3 python3-matplotlib
 
-.PHONY: deps build build-release test demo bench clean install
+.PHONY: deps build programs build-release test demo bench clean install
 
 deps:
 	@bash scripts/install-deps.sh $(DEB_PACKAGES)
@@ -22,6 +22,10 @@ $(BUILD)/CMakeCache.txt:
 build: deps $(BUILD)/CMakeCache.txt
 	cmake --build $(BUILD) -j $(JOBS)
 
+# Only what the demo runs: a newcomer's first `make demo` need not wait for every test and bench.
+programs: deps $(BUILD)/CMakeCache.txt
+	cmake --build $(BUILD) -j $(JOBS) --target btfvq-cli btfvq-server
+
 build-release: deps
 	cmake -S . -B $(BUILD_REL) -DCMAKE_BUILD_TYPE=Release -DBTFVQ_NATIVE=ON -DBTFVQ_WERROR=OFF -DBTFVQ_TESTS=OFF
 	cmake --build $(BUILD_REL) -j $(JOBS)
@@ -29,7 +33,7 @@ build-release: deps
 test: build
 	cd $(BUILD) && ctest --output-on-failure -j $(JOBS) --timeout 900
 
-demo: build
+demo: programs
 	@bash scripts/demo.sh $(BUILD)/bin
 
 bench: build-release

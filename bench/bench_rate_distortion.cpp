@@ -7,17 +7,9 @@
 // (commit, date, arguments), and the section is assembled from every kept sample: the 256 x 256
 // samples, an hour each here, can be measured by runs of their own without losing the others.
 //
-// Own flags (taken out before bench_common's; also read from the environment variable BTFVQ_RD_ARGS
-// so that `BTFVQ_RD_ARGS="--presets wood --size 64" make bench` reaches only this bench):
-//   --presets a,b,..   synthetic presets at --size (default tile,leather,wood,corduroy; --quick tile,leather,wood;
-//                      "none" for none)
-//   --size N           their size (128; --quick 32)
-//   --big p:N,..       extra presets at their own size (leather:256; --quick none); "none" for none
-//   --proposte N       the real proposte sample cropped to N x N from its corner (256 = whole; --quick 16; 0 = skip)
-//   --scales a,b,..    factors on configs/pipeline.json's thresholds.ssim (0.7,1,1.5)
-//   --phase2 a,b,..    more btfvq points at the default thresholds with schedule.phase2_fraction = a, b
-//                      (none by default; more growing texels raise quality where thresholds do not)
-//   --pca, --grouped, --lab, --vq a,b,..   baseline sizes (components / code-book entries)
+// Own options (kRdOptions below, `bench_rate_distortion --help`), also read from the environment
+// variable BTFVQ_RD_ARGS so that `BTFVQ_RD_ARGS="--presets wood --size 64" make bench` reaches only
+// this bench.
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
@@ -45,6 +37,19 @@ using namespace btfvq;
 using baselines::BaselinePoint;
 
 namespace {
+
+const std::vector<Option> kRdOptions{
+    {"presets", "a,b,..", "synthetic presets at --size, or none (tile,leather,wood,corduroy; --quick tile,leather,wood)"},
+    {"size", "N", "their size (128; --quick 32)"},
+    {"big", "p:N,..", "extra presets at their own size, or none (leather:256; --quick none)"},
+    {"proposte", "N", "the real proposte sample cropped to N x N from its corner (256 = whole; --quick 16; 0 = skip)"},
+    {"scales", "a,b,..", "factors on configs/pipeline.json's thresholds.ssim (0.7,1,1.5)"},
+    {"phase2", "a,b,..", "more btfvq points at the default thresholds with schedule.phase2_fraction = a, b (none; "
+                         "more growing texels raise quality where thresholds do not)"},
+    {"pca", "a,b,..", "per-view PCA components (1,2,5; --quick 1,2)"},
+    {"grouped", "a,b,..", "grouped PCA components (1,2,8; --quick 1,2)"},
+    {"lab", "a,b,..", "CIELab PCA components (1,4,16,64; --quick 1,2,4,8)"},
+    {"vq", "a,b,..", "texel VQ code-book entries (32,128; --quick 4)"}};
 
 struct RdArgs {
   std::vector<std::string> presets{"tile", "leather", "wood", "corduroy"};
@@ -86,56 +91,57 @@ std::vector<int> ints(const std::string& s) {
   return out;
 }
 
-// Splits this bench's own flags from argv (and BTFVQ_RD_ARGS); the rest goes to bench::parse_args.
-RdArgs take_rd_args(std::vector<std::string>& argv, bool& quick) {
-  if (const char* env = std::getenv("BTFVQ_RD_ARGS"))
-    for (const auto& a : split(env, ' ')) argv.push_back(a);
-  quick = std::find(argv.begin(), argv.end(), "--quick") != argv.end();
+std::vector<std::string> environment_args() {
+  const char* env = std::getenv("BTFVQ_RD_ARGS");
+  return env ? split(env, ' ') : std::vector<std::string>{};
+}
+
+std::vector<std::pair<std::string, int>> big_samples(const std::string& list) {
+  std::vector<std::pair<std::string, int>> big;
+  if (list == "none") return big;
+  for (const auto& item : split(list, ',')) {
+    const auto colon = item.find(':');
+    if (colon == std::string::npos) usage("--big wants preset:size, got " + item);
+    big.emplace_back(item.substr(0, colon), to_int(item.substr(colon + 1)));
+  }
+  return big;
+}
+
+std::vector<double> doubles(const std::string& list) {
+  std::vector<double> out;
+  for (const auto& x : split(list, ',')) out.push_back(std::stod(x));
+  return out;
+}
+
+RdArgs quick_defaults() {
   RdArgs r;
-  if (quick) {
-    r.size = 32;
-    r.big.clear();
-    r.proposte = 16;  // real data grows large code-books: even a 32 x 32 corner takes minutes per threshold scale
-    r.presets = {"tile", "leather", "wood"};
-    r.pca = {1, 2};
-    r.grouped = {1, 2};
-    r.lab = {1, 2, 4, 8};
-    r.vq = {4};
+  r.size = 32;
+  r.big.clear();
+  r.proposte = 16;  // real data grows large code-books: even a 32 x 32 corner takes minutes per threshold scale
+  r.presets = {"tile", "leather", "wood"};
+  r.pca = {1, 2};
+  r.grouped = {1, 2};
+  r.lab = {1, 2, 4, 8};
+  r.vq = {4};
+  return r;
+}
+
+// The defaults (of --quick or not), then the options given.
+RdArgs rd_args(const btfvq::Args& given, bool quick) {
+  RdArgs r = quick ? quick_defaults() : RdArgs{};
+  if (auto v = given.get("presets")) r.presets = *v == "none" ? std::vector<std::string>{} : split(*v, ',');
+  if (auto v = given.get("size")) r.size = to_int(*v);
+  if (auto v = given.get("big")) r.big = big_samples(*v);
+  if (auto v = given.get("proposte")) r.proposte = to_int(*v);
+  for (const auto& v : given.all("phase2")) {
+    const auto more = doubles(v);
+    r.phase2.insert(r.phase2.end(), more.begin(), more.end());
   }
-  std::vector<std::string> rest;
-  for (size_t i = 0; i < argv.size(); ++i) {
-    const std::string& k = argv[i];
-    auto value = [&]() -> std::string {
-      if (i + 1 >= argv.size()) usage(k + " needs a value");
-      return argv[++i];
-    };
-    if (k == "--presets") {
-      const std::string v = value();
-      r.presets = v == "none" ? std::vector<std::string>{} : split(v, ',');
-    }
-    else if (k == "--size") r.size = to_int(value());
-    else if (k == "--big") {
-      r.big.clear();
-      const std::string v = value();
-      if (v != "none")
-        for (const auto& item : split(v, ',')) {
-          const auto colon = item.find(':');
-          if (colon == std::string::npos) usage("--big wants preset:size, got " + item);
-          r.big.emplace_back(item.substr(0, colon), to_int(item.substr(colon + 1)));
-        }
-    } else if (k == "--proposte") r.proposte = to_int(value());
-    else if (k == "--phase2") {
-      for (const auto& x : split(value(), ',')) r.phase2.push_back(std::stod(x));
-    } else if (k == "--scales") {
-      r.scales.clear();
-      for (const auto& x : split(value(), ',')) r.scales.push_back(std::stod(x));
-    } else if (k == "--pca") r.pca = ints(value());
-    else if (k == "--grouped") r.grouped = ints(value());
-    else if (k == "--lab") r.lab = ints(value());
-    else if (k == "--vq") r.vq = ints(value());
-    else rest.push_back(k);
-  }
-  argv = rest;
+  if (auto v = given.get("scales")) r.scales = doubles(*v);
+  if (auto v = given.get("pca")) r.pca = ints(*v);
+  if (auto v = given.get("grouped")) r.grouped = ints(*v);
+  if (auto v = given.get("lab")) r.lab = ints(*v);
+  if (auto v = given.get("vq")) r.vq = ints(*v);
   return r;
 }
 
@@ -440,12 +446,9 @@ void write_rd_section(const bench::Args& args, bool quick) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::vector<std::string> av(argv + 1, argv + argc);
-  bool quick = false;
-  const RdArgs rd = take_rd_args(av, quick);
-  std::vector<char*> rest{argv[0]};
-  for (auto& a : av) rest.push_back(a.data());
-  const auto args = bench::parse_args(int(rest.size()), rest.data());
+  const auto args = bench::parse_args(argc, argv, kRdOptions, "The environment variable BTFVQ_RD_ARGS holds more of these, read after the command line.", environment_args());
+  const bool quick = args.quick;
+  const RdArgs rd = rd_args(args.given, quick);
 
   std::vector<std::pair<std::string, int>> synth;
   for (const auto& p : rd.presets) synth.emplace_back(p, rd.size);

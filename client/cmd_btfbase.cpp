@@ -25,9 +25,11 @@ int run_export(const Args& a) {
 }
 
 CommandRegistrar import_reg({"import-btfbase", "import-btfbase DIR --db OUT.btfdb",
-                             "import an original MLVQ (BTFBASE text) database, losslessly", {"db"}, {}, run_import});
+                             "import an original MLVQ (BTFBASE text) database, losslessly",
+                             {{"db", "OUT.btfdb", "the database to write"}}, {}, run_import});
 CommandRegistrar export_reg({"export-btfbase", "export-btfbase DB --out DIR",
-                             "write a database in the original MLVQ (BTFBASE text) format", {"out"}, {}, run_export});
+                             "write a database in the original MLVQ (BTFBASE text) format",
+                             {{"out", "DIR", "the folder to write"}}, {}, run_export});
 
 }  // namespace
 }  // namespace btfvq::cli

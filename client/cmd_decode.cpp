@@ -25,7 +25,10 @@ int run_decode(const Args& a) {
 
 CommandRegistrar reg({"decode", "decode DB --material NAME --out SAMPLE(.zip|dir) [--quality Q]",
                       "write a material decoded at the 81 x 81 measured directions in the UBO2003 layout",
-                      {"material", "out", "quality"}, {}, run_decode});
+                      {{"material", "NAME", "the material to decode"},
+                       {"out", "SAMPLE", "where to write: a .zip or a folder"},
+                       {"quality", "Q", "JPEG quality, 1 to 100 (default 95)"}},
+                      {}, run_decode});
 
 }  // namespace
 }  // namespace btfvq::cli

@@ -26,7 +26,9 @@ int run_download(const Args& args) {
 
 CommandRegistrar reg({"download", "download --server URL NAME --out FILE [--version N]",
                       "download a database (resumes FILE.part, verifies the sha256)",
-                      {"server", "token", "out", "version"}, {}, run_download});
+                      remote_options({{"out", "FILE", "where to write; a FILE.part left by a broken download is resumed"},
+                                      {"version", "N", "that version instead of the newest"}}),
+                      {}, run_download});
 
 }  // namespace
 }  // namespace btfvq::cli

@@ -68,7 +68,10 @@ int run_eval(const Args& a) {
 
 CommandRegistrar reg({"eval", "eval DB [--material NAME] --reference IN [--json FILE]",
                       "decode a material at the reference's directions and print ratio, MSSIM, PSNR, CIEDE2000",
-                      {"material", "reference", "json"}, {}, run_eval});
+                      {{"material", "NAME", "the material (needed when the database holds several)"},
+                       {"reference", "IN", "the measured sample to compare with (zip or folder)"},
+                       {"json", "FILE", "also write the metrics to FILE as JSON"}},
+                      {}, run_eval});
 
 }  // namespace
 }  // namespace btfvq::cli

@@ -27,7 +27,7 @@ int run_ls(const Args& args) {
 }
 
 CommandRegistrar reg({"ls", "ls --server URL [--json]", "list the databases on a server (versions, sizes, ratios)",
-                      {"server", "token"}, {"json"}, run_ls});
+                      remote_options(), {{"json", "", "print the server's JSON reply"}}, run_ls});
 
 }  // namespace
 }  // namespace btfvq::cli

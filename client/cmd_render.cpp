@@ -77,7 +77,16 @@ CommandRegistrar reg({"render",
                       "render DB --material NAME --light T,P --view T,P --out x.png [--texel X,Y] | "
                       "render DB --material NAME --scene sphere|plane [--light T,P | --env] [--size N] [--tiles K] --out x.png",
                       "write the decoded image of a material for one light and view direction, or a preview on a sphere/plane",
-                      {"material", "light", "view", "out", "texel", "scene", "size", "tiles"}, {"env"}, run_render});
+                      {{"material", "NAME", "the material to render"},
+                       {"light", "T,P", "light direction in degrees (with --scene in the camera frame; theta may exceed 90)"},
+                       {"view", "T,P", "view direction in degrees, theta in [0, 90]"},
+                       {"out", "x.png", "the image to write"},
+                       {"texel", "X,Y", "also print the decoded value of this texel"},
+                       {"scene", "sphere|plane", "a preview of the material on a sphere or a plane"},
+                       {"size", "N", "the preview's width and height in pixels, 16 to 2048 (default 256)"},
+                       {"tiles", "K", "how often the texture repeats across the preview (default 2)"}},
+                      {{"env", "", "light the preview with a few lights around the scene"}},
+                      run_render});
 
 }  // namespace
 }  // namespace btfvq::cli

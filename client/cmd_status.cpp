@@ -28,7 +28,7 @@ int run_status(const Args& args) {
 }
 
 CommandRegistrar reg({"status", "status --server URL JOB [--json]", "show the state and progress of a server job",
-                      {"server", "token"}, {"json"}, run_status});
+                      remote_options(), {{"json", "", "print the job as JSON"}}, run_status});
 
 }  // namespace
 }  // namespace btfvq::cli

@@ -108,7 +108,13 @@ CommandRegistrar reg({"submit",
                       "submit --server URL --db NAME (--synthetic PRESET[:SIZE] | --upload PATH | --path SERVER_PATH)... "
                       "[--name NAME]... [--seed S] [--config overrides.json]",
                       "submit materials to a btfvq server as one job; prints the job id",
-                      {"server", "token", "db", "synthetic", "upload", "path", "name", "seed", "config"},
+                      remote_options({{"db", "NAME", "the database on the server that gains the materials"},
+                                      {"synthetic", "PRESET[:SIZE]", "a synthetic material rendered by the server (size 64)"},
+                                      {"upload", "PATH", "a local sample (.zip), uploaded first"},
+                                      {"path", "SERVER_PATH", "a sample on the server, below its input root"},
+                                      {"name", "NAME", "a material's name, once per material in the order --synthetic, --path, --upload"},
+                                      {"seed", "S", "the seed of the synthetic materials (default 1)"},
+                                      {"config", "FILE", "pipeline settings (JSON) over configs/pipeline.json"}}),
                       {},
                       run_submit});
 

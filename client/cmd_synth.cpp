@@ -82,8 +82,12 @@ CommandRegistrar reg({"synth",
                       "synth --preset NAME [--size N] [--seed S] --out PATH(.zip|dir) [--hdr] [--quality Q]",
                       "render a synthetic BTF (presets tile, foil, wood, leather, fabric, corduroy, wool) at the 81 x 81 "
                       "Bonn directions and write it in the UBO2003 layout",
-                      {"preset", "size", "seed", "out", "quality"},
-                      {"hdr"},
+                      {{"preset", "NAME", "the material preset, one of those named above"},
+                       {"size", "N", "width and height in texels, 1 to 2048 (default 256)"},
+                       {"seed", "S", "the random seed, a non-negative integer (default 1)"},
+                       {"out", "PATH", "where to write: a .zip or a folder"},
+                       {"quality", "Q", "JPEG quality, 1 to 100 (default 95)"}},
+                      {{"hdr", "", "linear float (EXR) images instead of 8-bit sRGB"}},
                       run_synth});
 
 }  // namespace

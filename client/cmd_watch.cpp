@@ -59,7 +59,7 @@ int run_watch(const Args& args) {
 
 CommandRegistrar reg({"watch", "watch --server URL JOB",
                       "follow a server job with a progress bar; exit 0 on success, 1 on failure, 5 if cancelled",
-                      {"server", "token"}, {}, run_watch});
+                      remote_options(), {}, run_watch});
 
 }  // namespace
 }  // namespace btfvq::cli

@@ -26,6 +26,12 @@ Remote remote_from(const Args& args) {
   return r;
 }
 
+std::vector<Option> remote_options(std::vector<Option> own) {
+  own.insert(own.begin(), {{"server", "URL", "the btfvq server (default: BTFVQ_SERVER)"},
+                           {"token", "TOKEN", "its bearer token (default: BTFVQ_TOKEN)"}});
+  return own;
+}
+
 void throw_http_error(int status, const std::string& body) {
   std::string code = "http_" + std::to_string(status), message = body;
   try {

@@ -8,14 +8,15 @@
 #include <functional>
 #include <memory>
 #include <string>
+#include <vector>
+
+#include "pipeline/util/args.h"
 
 namespace httplib {
 class Client;
 }
 
 namespace btfvq::cli {
-
-class Args;
 
 struct Remote {
   std::string url;    // http://host:port
@@ -24,6 +25,8 @@ struct Remote {
 
 // --server / BTFVQ_SERVER and --token / BTFVQ_TOKEN.
 Remote remote_from(const Args& args);
+// The options remote_from reads, then a remote command's own.
+std::vector<Option> remote_options(std::vector<Option> own = {});
 
 using ByteProgress = std::function<void(uint64_t done, uint64_t total)>;
 

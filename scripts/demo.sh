@@ -29,8 +29,10 @@ echo "demo: submitted job $job"
 "$bin/btfvq" download demo --out "$out/demo.btfdb"
 "$bin/btfvq" ls
 "$bin/btfvq" eval "$out/demo.btfdb" --material leather --reference "$out/leather.zip" --json "$out/eval.json"
-"$bin/btfvq" render "$out/demo.btfdb" --material leather --light 45,120 --view 30,60 --out "$out/preview.png"
+# The 64 x 64 material repeats 4 times around the sphere, so that a texel is a few pixels, not a block.
+"$bin/btfvq" render "$out/demo.btfdb" --material leather --scene sphere --size 512 --light 45,135 --tiles 4 \
+  --out "$out/preview.png"
 echo
 echo "demo: database: $out/demo.btfdb"
-echo "demo: preview:  $out/preview.png (light 45,120, view 30,60)"
+echo "demo: preview:  $out/preview.png (the material on a 512 x 512 sphere, lit from the upper left)"
 echo "demo: metrics:  $out/eval.json"

@@ -6,49 +6,38 @@
 
 #include <cstdlib>
 #include <iostream>
+#include <string>
 #include <thread>
+#include <vector>
 
 #include <btfvq/error.h>
+#include "pipeline/util/args.h"
 #include "server/http_server.h"
 #include "server/server_config.h"
 #include "server/service.h"
 
 namespace {
 
-constexpr const char* kUsage =
-    "usage: btfvq-server [--listen HOST:PORT] [--data DIR] [--config FILE] [--input-root DIR] [--workers N]\n"
-    "  defaults come from configs/server.json; BTFVQ_TOKEN sets the bearer token\n";
+const btfvq::ArgSpec kSpec{
+    "btfvq-server",
+    "btfvq-server [--listen HOST:PORT] [--data DIR] [--config FILE] [--input-root DIR] [--workers N]",
+    "the btfvq REST service (docs/api.md)",
+    {{"listen", "HOST:PORT", "the address to listen on"},
+     {"data", "DIR", "the data directory (SQLite and blobs)"},
+     {"config", "FILE", "settings over configs/server.json"},
+     {"input-root", "DIR", "the folder below which jobs may name server-side paths"},
+     {"workers", "N", "how many jobs run at once"}},
+    {},
+    /*positionals=*/false,
+    "defaults come from configs/server.json; BTFVQ_TOKEN sets the bearer token"};
 
-btfvq::server::ServerFlags parse_flags(int argc, char** argv) {
+btfvq::server::ServerFlags flags_of(const btfvq::Args& args) {
   btfvq::server::ServerFlags f;
-  for (int i = 1; i < argc; ++i) {
-    std::string flag = argv[i], value;
-    if (flag == "--help" || flag == "-h") {
-      std::cout << kUsage;
-      std::exit(0);
-    }
-    if (auto eq = flag.find('='); eq != std::string::npos) {
-      value = flag.substr(eq + 1);
-      flag = flag.substr(0, eq);
-    } else if (i + 1 < argc) {
-      value = argv[++i];
-    } else {
-      throw btfvq::InputError(flag + " needs a value");
-    }
-    if (flag == "--listen") f.listen = value;
-    else if (flag == "--data") f.data_dir = value;
-    else if (flag == "--config") f.config_file = value;
-    else if (flag == "--input-root") f.input_root = value;
-    else if (flag == "--workers") {
-      try {
-        f.workers = std::stoi(value);
-      } catch (const std::exception&) {
-        throw btfvq::InputError("--workers: '" + value + "' is not an integer");
-      }
-    } else {
-      throw btfvq::InputError("unknown flag '" + flag + "'");
-    }
-  }
+  f.listen = args.get("listen");
+  f.data_dir = args.get("data");
+  f.config_file = args.get("config");
+  f.input_root = args.get("input-root");
+  if (args.has("workers")) f.workers = args.integer("workers", 0);
   return f;
 }
 
@@ -58,7 +47,12 @@ int main(int argc, char** argv) {
   spdlog::set_default_logger(spdlog::stderr_color_mt("btfvq-server"));
   spdlog::set_pattern("[%Y-%m-%d %H:%M:%S.%e] [%l] %v");
   try {
-    const auto config = btfvq::server::load_server_config(parse_flags(argc, argv));
+    const btfvq::Args args = btfvq::parse_args(kSpec, std::vector<std::string>(argv + 1, argv + argc));
+    if (args.has("help")) {
+      std::cout << btfvq::help_text(kSpec);
+      return 0;
+    }
+    const auto config = btfvq::server::load_server_config(flags_of(args));
     spdlog::set_level(spdlog::level::from_str(config.log_level));
     if (const char* level = std::getenv("BTFVQ_LOG")) spdlog::set_level(spdlog::level::from_str(level));
 
@@ -89,7 +83,7 @@ int main(int argc, char** argv) {
     spdlog::info("stopped");
     return 0;
   } catch (const btfvq::InputError& e) {
-    std::cerr << "btfvq-server: error: " << e.what() << "\n" << kUsage;
+    std::cerr << "btfvq-server: error: " << e.what() << "\n";
     return 2;
   } catch (const std::exception& e) {
     std::cerr << "btfvq-server: error: " << e.what() << "\n";
