@@ -26,6 +26,7 @@
 #include "bench/baselines/per_view_pca.h"
 #include "bench/baselines/texel_vq.h"
 #include "bench/bench_common.h"
+#include "pipeline/util/atomic_file.h"
 #include "pipeline/io/btfbase.h"
 #include "pipeline/encode/compress.h"
 #include "pipeline/format/database.h"
@@ -383,9 +384,7 @@ void keep_sample(const bench::Args& args, bool quick, const std::string& key, co
   const nlohmann::json kept = {{"key", key}, {"title", title}, {"markdown", markdown},
                                {"figures", figures},
                                {"provenance", {{"commit", commit ? commit : "unknown"}, {"command", command}, {"date", utc_now()}}}};
-  const auto tmp = dir / (key + ".json.tmp");
-  std::ofstream(tmp) << kept.dump(1);
-  std::filesystem::rename(tmp, dir / (key + ".json"));
+  write_file_atomically((dir / (key + ".json")).string(), kept.dump(1));
 }
 
 // The section: the method, then every kept sample with the run that measured it, then the tally.

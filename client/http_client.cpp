@@ -8,6 +8,7 @@
 
 #include "client/cli.h"
 #include <btfvq/error.h>
+#include "pipeline/util/atomic_file.h"
 #include "pipeline/util/sha256.h"
 
 namespace btfvq::cli {
@@ -242,7 +243,7 @@ DownloadResult HttpClient::fetch(const std::string& name, const std::string& out
     fs::remove(meta_path);
     throw CorruptError("downloaded '" + name + "' hashes to " + actual + ", the server says " + result.sha256);
   }
-  fs::rename(part, out);
+  publish_file(part, out);  // the verified partial file becomes the download, durably
   fs::remove(meta_path);
   return result;
 }

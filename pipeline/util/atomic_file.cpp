@@ -54,29 +54,35 @@ AtomicFile::~AtomicFile() {
 }
 
 void AtomicFile::commit() {
-  auto fail = [&](int err) {
+  try {
+    publish_file(temp_, target_);
+  } catch (const Error&) {
     std::error_code ec;
     fs::remove_all(temp_, ec);
-    throw Error("io", "cannot write '" + target_ + "': " + reason(err));
-  };
-  if (int rc = sync_tree(temp_)) fail(rc);
+    throw;
+  }
+  committed_ = true;
+}
+
+void publish_file(const std::string& temp, const std::string& target_path) {
+  auto fail = [&](int err) { throw Error("io", "cannot write '" + target_path + "': " + reason(err)); };
+  if (int rc = sync_tree(temp)) fail(rc);
   std::error_code ec;
-  const fs::path target(target_);
+  const fs::path target(target_path);
   if (fs::is_directory(fs::status(target, ec))) {
     // rename(2) cannot replace a non-empty folder: move the old one aside first, put it back on failure.
     const fs::path old = target.parent_path() / ("." + target.filename().string() + ".old-" +
-                                                 fs::path(temp_).filename().string());
+                                                 fs::path(temp).filename().string());
     if (::rename(target.c_str(), old.c_str()) != 0) fail(errno);
-    if (::rename(temp_.c_str(), target.c_str()) != 0) {
+    if (::rename(temp.c_str(), target.c_str()) != 0) {
       const int err = errno;
       ::rename(old.c_str(), target.c_str());
       fail(err);
     }
     fs::remove_all(old, ec);
-  } else if (::rename(temp_.c_str(), target.c_str()) != 0) {
+  } else if (::rename(temp.c_str(), target.c_str()) != 0) {
     fail(errno);
   }
-  committed_ = true;
   sync_one(fs::absolute(target).parent_path(), true);
 }
 

@@ -33,6 +33,11 @@ class AtomicFile {
   bool committed_ = false;
 };
 
+// The publishing step of AtomicFile on its own, for a temporary that must outlive the process (a
+// resumable download's partial file): fsync `temp`, rename it over `target`, fsync the folder.
+// Error("io") names the target; `temp` is left in place on failure.
+void publish_file(const std::string& temp, const std::string& target);
+
 // Writes `size` bytes to `path` through an AtomicFile. Error("io") names the path and the reason
 // (e.g. "No space left on device").
 void write_file_atomically(const std::string& path, const void* data, size_t size);
