@@ -2,6 +2,9 @@
 
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
+#include <climits>
+
 #include <btfvq/error.h>
 
 namespace btfvq {
@@ -88,6 +91,121 @@ void Database::validate() const {
                            std::to_string(i % size_t(mat.width)) + ": index " + std::to_string(mat.p6_index[i]) +
                            " is past the end of P4 (" + std::to_string(k.p4_index.rows()) + " entries)");
   }
+}
+
+namespace {
+
+// Marks rows reached from `from` (whose values are row indices into `to`), in every column.
+void mark(const Table<uint32_t>& from, const std::vector<uint8_t>& from_used, std::vector<uint8_t>& to_used, int column = -1) {
+  for (size_t r = 0; r < from.rows(); ++r) {
+    if (!from_used[r]) continue;
+    for (size_t c = 0; c < from.cols(); ++c)
+      if (column < 0 || size_t(column) == c) to_used[from.at(r, c)] = 1;
+  }
+}
+
+// New index of every row: published rows keep theirs; kept unpublished rows close up behind them.
+std::vector<uint32_t> renumber(std::vector<uint8_t>& used, size_t published, size_t* removed) {
+  std::vector<uint32_t> to(used.size());
+  uint32_t next = 0;
+  for (size_t r = 0; r < used.size(); ++r) {
+    if (r < published) used[r] = 1;
+    to[r] = used[r] ? next++ : UINT32_MAX;
+  }
+  *removed = used.size() - next;
+  return to;
+}
+
+// Keeps the rows marked in `used` (in order) and rewrites `column` (or every column) through `to`.
+template <class T>
+void compact(Table<T>& t, const std::vector<uint8_t>& used) {
+  size_t out = 0;
+  for (size_t r = 0; r < t.rows(); ++r)
+    if (used[r]) {
+      if (out != r) std::copy(t.row(r), t.row(r) + t.cols(), t.row(out));
+      ++out;
+    }
+  t.resize_rows(out);
+}
+
+void rewrite(Table<uint32_t>& t, const std::vector<uint32_t>& to, int column = -1) {
+  for (size_t r = 0; r < t.rows(); ++r)
+    for (size_t c = 0; c < t.cols(); ++c)
+      if (column < 0 || size_t(column) == c) t.at(r, c) = to[t.at(r, c)];
+}
+
+}  // namespace
+
+ReclaimReport reclaim_unreachable(Database& db) {
+  Codebooks& k = db.codebooks;
+  const CodebookSizes published = db.versions.empty() ? CodebookSizes{} : db.versions.back().rows;
+  std::vector<uint8_t> p4(k.p4_index.rows()), p3(k.p3_index.rows()), m(k.m.rows()), p2(k.p2_index.rows()),
+      i2(k.i2.rows()), p1(k.p1.rows()), i1(k.i1.rows()), c(k.c.rows());
+  for (const Material& mat : db.materials)
+    for (int32_t e : mat.p6_index)
+      if (e >= 0) p4[size_t(e)] = 1;
+  // Published rows reach only published rows, but count as reachable from themselves.
+  auto keep_published = [](std::vector<uint8_t>& used, size_t n) {
+    for (size_t r = 0; r < std::min(n, used.size()); ++r) used[r] = 1;
+  };
+  keep_published(p4, published[CodebookId::P4]);
+  mark(k.p4_index, p4, p3);
+  keep_published(p3, published[CodebookId::P3]);
+  mark(k.p3_index, p3, m);
+  keep_published(m, published[CodebookId::M]);
+  mark(k.m, m, p2, 0);
+  mark(k.m, m, i2, 1);
+  keep_published(p2, published[CodebookId::P2]);
+  keep_published(i2, published[CodebookId::I2]);
+  mark(k.p2_index, p2, p1);
+  mark(k.i2, i2, i1);
+  keep_published(i1, published[CodebookId::I1]);
+  mark(k.i1, i1, c);
+
+  ReclaimReport report;
+  auto count = [](const std::vector<uint8_t>& used) { return size_t(std::count(used.begin(), used.end(), 1)); };
+  const std::pair<CodebookId, std::vector<uint8_t>*> all[] = {{CodebookId::P1, &p1}, {CodebookId::C, &c},
+                                                              {CodebookId::I1, &i1}, {CodebookId::I2, &i2},
+                                                              {CodebookId::P2, &p2}, {CodebookId::M, &m},
+                                                              {CodebookId::P3, &p3}, {CodebookId::P4, &p4}};
+  for (const auto& [id, used] : all) {
+    keep_published(*used, published[id]);
+    report.reachable[id] = count(*used);
+  }
+  size_t removed = 0;
+  const auto to_c = renumber(c, published[CodebookId::C], &report.removed[CodebookId::C]);
+  const auto to_i1 = renumber(i1, published[CodebookId::I1], &report.removed[CodebookId::I1]);
+  const auto to_i2 = renumber(i2, published[CodebookId::I2], &report.removed[CodebookId::I2]);
+  const auto to_p1 = renumber(p1, published[CodebookId::P1], &report.removed[CodebookId::P1]);
+  const auto to_p2 = renumber(p2, published[CodebookId::P2], &report.removed[CodebookId::P2]);
+  const auto to_m = renumber(m, published[CodebookId::M], &report.removed[CodebookId::M]);
+  const auto to_p3 = renumber(p3, published[CodebookId::P3], &report.removed[CodebookId::P3]);
+  const auto to_p4 = renumber(p4, published[CodebookId::P4], &report.removed[CodebookId::P4]);
+  for (CodebookId id : kAllCodebooks) removed += report.removed[id];
+  if (removed == 0) return report;
+
+  compact(k.c, c);
+  compact(k.i1, i1);
+  rewrite(k.i1, to_c);
+  compact(k.i2, i2);
+  rewrite(k.i2, to_i1);
+  compact(k.p1, p1);
+  compact(k.p2_index, p2);
+  compact(k.p2_scale, p2);
+  rewrite(k.p2_index, to_p1);
+  compact(k.m, m);
+  rewrite(k.m, to_p2, 0);
+  rewrite(k.m, to_i2, 1);
+  compact(k.p3_index, p3);
+  compact(k.p3_scale, p3);
+  rewrite(k.p3_index, to_m);
+  compact(k.p4_index, p4);
+  compact(k.p4_scale, p4);
+  rewrite(k.p4_index, to_p3);
+  for (Material& mat : db.materials)
+    for (int32_t& e : mat.p6_index)
+      if (e >= 0) e = int32_t(to_p4[size_t(e)]);
+  return report;
 }
 
 }  // namespace btfvq

@@ -148,4 +148,16 @@ struct Database {
   void validate() const;
 };
 
+// Rows of one code-book per id: how many reclaim_unreachable() removed and kept.
+struct ReclaimReport {
+  CodebookSizes removed, reachable;
+};
+
+// Removes the rows not yet published (past the last VersionMark) that no material's P6 reaches
+// through the code-book chain -- the children of compositions the encoder tried and rejected, entries
+// that later ones made redundant -- and renumbers the rest in their order, rewriting the indices of
+// unpublished rows and of every material. Published rows are never touched (append-only: old
+// versions stay byte-identical). `reachable` counts every reachable row, published or not.
+ReclaimReport reclaim_unreachable(Database& db);
+
 }  // namespace btfvq

@@ -153,10 +153,19 @@ TEST_CASE("a smooth analytic BRDF is reproduced far better than by nearest-neigh
   nearest_settings.light_neighbours = 1;
   nearest_settings.view_neighbours = 1;
   const ResampleOperator nearest(s, AngularGrid{}, nearest_settings);
+  // Linear precision (the override) follows a smooth BRDF closer still; the shipped constant
+  // precision trades a little of that for less amplified measurement noise (docs/resampling.md).
+  ResampleSettings linear_settings = default_settings();
+  linear_settings.polynomial_degree = 1;
+  const ResampleOperator linear(s, AngularGrid{}, linear_settings);
   const double good = rms_against_analytic(rbf, s), sloppy = rms_against_analytic(nearest, s);
-  MESSAGE("RMS error over the measured range: RBF " << good << ", nearest neighbour " << sloppy);
-  CHECK(good < 1.0);
+  const double closer = rms_against_analytic(linear, s);
+  MESSAGE("RMS error over the measured range: RBF " << good << " (linear precision " << closer
+                                                    << "), nearest neighbour " << sloppy);
+  CHECK(good < 1.5);
+  CHECK(closer < 1.0);
   CHECK(sloppy > 2.0);
+  CHECK(good < 0.35 * sloppy);
 }
 
 TEST_CASE("every output node's weights sum to 1 and a constant input stays constant") {

@@ -162,6 +162,8 @@ CompressReport compress_material(Database& db, const MeasuredSample& sample, con
   m.p6_index = result.p6_index;
   m.p6_scale = result.p6_scale;
   db.materials.push_back(std::move(m));
+  // Children of rejected compositions and entries nothing reached any more cost bytes and searches.
+  const ReclaimReport reclaimed = reclaim_unreachable(db);
 
   const ScheduleReport& r = result.report;
   nlohmann::json phases = nlohmann::json::array();
@@ -199,7 +201,13 @@ CompressReport compress_material(Database& db, const MeasuredSample& sample, con
                           {"settle_seconds", r.search_stats.settle_seconds}}},
               {"encoder", {{"comparisons", r.encoder.comparisons},
                            {"pruned", r.encoder.pruned},
-                           {"fallbacks", r.encoder.fallbacks}}},
+                           {"fallbacks", r.encoder.fallbacks},
+                           {"inserted", {{"search_miss", r.encoder.inserted_miss},
+                                         {"retry", r.encoder.inserted_retry},
+                                         {"exact", r.encoder.inserted_exact}}},
+                           {"reused_identical", r.encoder.reused},
+                           {"reclaimed", reclaimed.removed},
+                           {"reachable", reclaimed.reachable}}},
               {"codebook_sizes", CodebookSizes::of(db.codebooks)}};
   report("done", 0, sample.texel_count(), sample.texel_count(), 1.0);
   return out;

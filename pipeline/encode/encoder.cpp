@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <limits>
 
 #include <btfvq/error.h>
@@ -11,26 +13,7 @@ namespace btfvq {
 namespace {
 
 constexpr double kNoBound = -1e300;
-
-// A composition that misses its parent's threshold is first re-encoded with every threshold below
-// it tightened by this factor, and only then exactly: an exact M slice costs 11 new P1 rows and 121
-// new C values, a tightened one mostly reuses entries.
-constexpr double kRetryFactor = 0.5;
-
-// Scales the encoder's thresholds for the lifetime of the scope (children of a retried entry).
-class TightenedScope {
- public:
-  TightenedScope(Thresholds& t, double f) : t_(t), saved_(t) {
-    if (f != 1.0) t_ = t_.relaxed(f);
-  }
-  ~TightenedScope() { t_ = saved_; }
-  TightenedScope(const TightenedScope&) = delete;
-  TightenedScope& operator=(const TightenedScope&) = delete;
-
- private:
-  Thresholds& t_;
-  Thresholds saved_;
-};
+constexpr double kNoCap = std::numeric_limits<double>::infinity();  // a child's own threshold applies
 
 Thresholds read_thresholds(const ParameterDictionary& d, const std::string& prefix, double hi) {
   Thresholds t;
@@ -51,6 +34,38 @@ Affine unit_affine(Dynamic dyn, int channel, float unit) {
   const float o = channel_offset(dyn, channel);
   return {o * (1.0f - unit), unit};
 }
+
+// FNV-1a over the bytes of a row (and of its second table's row): the key of ContentIndex.
+uint64_t row_hash(const void* a, size_t na, const void* b, size_t nb) {
+  uint64_t h = 1469598103934665603ull;
+  auto mix = [&h](const void* p, size_t n) {
+    const auto* c = static_cast<const uint8_t*>(p);
+    for (size_t i = 0; i < n; ++i) h = (h ^ c[i]) * 1099511628211ull;
+  };
+  mix(a, na);
+  if (b) mix(b, nb);
+  return h;
+}
+
+template <class A, class B>
+uint64_t table_row_hash(const Table<A>& ta, size_t r, const Table<B>* tb) {
+  return row_hash(ta.row(r), ta.cols() * sizeof(A), tb ? tb->row(r) : nullptr, tb ? tb->cols() * sizeof(B) : 0);
+}
+
+// Marks the insertions below an attempt with its cause for the scope's lifetime (the strongest
+// cause of the nesting wins: a leaf inserted under an exact re-encode counts as exact).
+template <class C>
+class CauseScope {
+ public:
+  CauseScope(C& c, C now) : c_(c), saved_(c) { c_ = std::max(c_, now); }
+  ~CauseScope() { c_ = saved_; }
+  CauseScope(const CauseScope&) = delete;
+  CauseScope& operator=(const CauseScope&) = delete;
+
+ private:
+  C& c_;
+  C saved_;
+};
 
 float dot(const float* a, const float* b, int n) {
   float s0 = 0, s1 = 0, s2 = 0, s3 = 0;
@@ -86,7 +101,27 @@ Thresholds Thresholds::relaxed(double f) const {
   return {p4 * f, p3 * f, m * f, p2 * f, p1 * f, i2 * f, i1 * f, c * f};
 }
 
+void EncoderStats::add(const EncoderStats& o) {
+  texels += o.texels;
+  comparisons += o.comparisons;
+  pruned += o.pruned;
+  fallbacks += o.fallbacks;
+  laesa_skipped += o.laesa_skipped;
+  for (CodebookId id : kAllCodebooks) {
+    inserted_miss[id] += o.inserted_miss[id];
+    inserted_retry[id] += o.inserted_retry[id];
+    inserted_exact[id] += o.inserted_exact[id];
+    reused[id] += o.reused[id];
+  }
+}
+
 float normalized_brightness(Dynamic dyn) { return dyn == Dynamic::LDR ? 100.0f : 1.0f; }
+
+// The factor that brings a new composite entry of mean brightness `bright` to the fixed brightness
+// (its children's scales are divided by it, the parent's scale carries it).
+float Encoder::normalization(double bright) const {
+  return bright > 1e-6 ? float(bright) / normalized_brightness(dyn_) : 1.0f;
+}
 
 // ---------------------------------------------------------------------------------------------
 // Per-call scratch and queries.
@@ -187,6 +222,8 @@ void Encoder::sync() {
 namespace {
 // Leaders whose lists a 1D search scans (ProxyIndex::nearest).
 constexpr int kProbes = 8;
+// Stored rows a repair tries for a failing row of a plane before it stores the row exactly.
+constexpr int kReuseCandidates = 16;
 
 // The row as a unit vector: P1 rows are matched after their best scale, so only the shape counts.
 void unit_shape(const float* row, int n, float* out) {
@@ -197,7 +234,30 @@ void unit_shape(const float* row, int n, float* out) {
 }
 }  // namespace
 
+template <class A, class B>
+uint32_t Encoder::insert_row(CodebookId id, ContentIndex& index, Table<A>& ta, const A* a, Table<B>* tb, const B* b,
+                             bool* added) {
+  const uint64_t h = row_hash(a, ta.cols() * sizeof(A), b, tb ? tb->cols() * sizeof(B) : 0);
+  if (const auto it = index.ids.find(h); it != index.ids.end())
+    for (uint32_t e : it->second)
+      if (std::equal(a, a + ta.cols(), ta.row(e)) && (!tb || std::equal(b, b + tb->cols(), tb->row(e)))) {
+        ++stats_.reused[id];
+        *added = false;
+        return e;
+      }
+  const uint32_t e = ta.append(a);
+  if (tb) tb->append(b);
+  *added = true;
+  return e;
+}
+
+void Encoder::count_insert(CodebookId id, bool exact) {
+  const Cause c = exact ? kExact : cause_;
+  (c == kExact ? stats_.inserted_exact : c == kRetry ? stats_.inserted_retry : stats_.inserted_miss)[id] += 1;
+}
+
 void Encoder::cache_p1(uint32_t e) {
+  p1_rows_.ids[table_row_hash<float, float>(books_.p1, e, nullptr)].push_back(e);
   p1_store_.append(books_.p1.row(e));
   float shape[256];
   if (grid_.n_beta > 256) throw InputError("encoder: n_beta above 256 is not supported");
@@ -207,16 +267,22 @@ void Encoder::cache_p1(uint32_t e) {
 
 namespace {
 constexpr float kCCell = 4.0f;  // grid cell of the C index, in stored chroma units
+// An "exact" chroma value (a repair) still reuses a stored one within this distance (absolute units,
+// about a quarter of a just-noticeable chroma step): without it every repaired sample, JPEG noise
+// included, became a C entry of its own (a real sample: C 48,144 instead of 752).
+constexpr double kExactC = 1.0;
 int64_t c_cell(double v) { return int64_t(std::floor(v / kCCell)); }
 uint64_t c_key(int64_t i, int64_t j) { return (uint64_t(uint32_t(int32_t(i))) << 32) | uint32_t(int32_t(j)); }
 }  // namespace
 
 void Encoder::index_c(uint32_t e) {
+  c_rows_.ids[table_row_hash<float, float>(books_.c, e, nullptr)].push_back(e);
   c_grid_[c_key(c_cell(books_.c.at(e, 0)), c_cell(books_.c.at(e, 1)))].push_back(e);
   c_indexed_ = size_t(e) + 1;
 }
 
 void Encoder::cache_i1(uint32_t e) {
+  i1_rows_.ids[table_row_hash<uint32_t, uint32_t>(books_.i1, e, nullptr)].push_back(e);
   const int nb = grid_.n_beta;
   std::vector<float> v(static_cast<size_t>(2 * nb));
   for (int b = 0; b < nb; ++b) {
@@ -229,6 +295,7 @@ void Encoder::cache_i1(uint32_t e) {
 }
 
 void Encoder::cache_p2(uint32_t e) {
+  p2_rows_.ids[table_row_hash(books_.p2_index, e, &books_.p2_scale)].push_back(e);
   const int na = grid_.n_alpha, nb = grid_.n_beta;
   std::vector<float> v(static_cast<size_t>(na * nb));
   for (int a = 0; a < na; ++a) {
@@ -246,6 +313,7 @@ void Encoder::cache_p2(uint32_t e) {
 }
 
 void Encoder::cache_i2(uint32_t e) {
+  i2_rows_.ids[table_row_hash<uint32_t, uint32_t>(books_.i2, e, nullptr)].push_back(e);
   const int na = grid_.n_alpha, nb = grid_.n_beta, n = na * nb;
   std::vector<float> v(static_cast<size_t>(2 * n));
   for (int a = 0; a < na; ++a) {
@@ -278,6 +346,7 @@ void Encoder::cache_m(uint32_t e) {
 
 // Proxy signature of composite entries: per plane, the offset-removed mean of each channel.
 void Encoder::cache_p3(uint32_t e) {
+  p3_rows_.ids[table_row_hash(books_.p3_index, e, &books_.p3_scale)].push_back(e);
   const int nt = grid_.n_theta_v, na = grid_.n_alpha;
   double bright = 0;
   for (int t = 0; t < nt; ++t) {
@@ -295,6 +364,7 @@ void Encoder::cache_p3(uint32_t e) {
 }
 
 void Encoder::cache_p4(uint32_t e) {
+  p4_rows_.ids[table_row_hash(books_.p4_index, e, &books_.p4_scale)].push_back(e);
   const int np = grid_.n_phi_v, nt = grid_.n_theta_v;
   double bright = 0;
   for (int p = 0; p < np; ++p) {
@@ -390,7 +460,7 @@ void Encoder::planes_of_p4(uint32_t e, std::vector<PlaneRef>& out) const {
 }
 
 bool Encoder::evaluate_composite(const Query& q, const PlaneRef* planes, int np, double bound, Ctx& ctx, double* score,
-                                 float* scale) const {
+                                 float* scale, bool fixed_scale) const {
   const int n = g2_.size();
   // Best RGB scale: least squares on the offset-removed values of the channels it acts on.
   double num = 0, den = 0;
@@ -406,7 +476,7 @@ bool Encoder::evaluate_composite(const Query& q, const PlaneRef* planes, int np,
       den += f * f * (y.sumsq - 2 * o * y.sum + n * o * o);
     }
   }
-  const double s = den > 1e-20 ? std::max(0.0, num / den) : 1.0;
+  const double s = fixed_scale ? double(*scale) : den > 1e-20 ? std::max(0.0, num / den) : 1.0;
   ctx.acc.reset(settings_.metric, q.values, settings_.outlier_fraction, bound);
   const bool reorder = settings_.metric == Metric::SSIM && int(q.order.size()) == np;
   for (int jj = 0; jj < np; ++jj)
@@ -644,6 +714,11 @@ Encoder::Match Encoder::search_i2(const Query& q, double threshold_score, Ctx& c
   return best;
 }
 
+float Encoder::p1_scale(const float* x, uint32_t e) const {
+  const ChannelView y = p1_store_.view(e, 0);
+  return y.sumsq > 0 ? float(std::max(0.0, double(dot(x, y.v, grid_.n_beta)) / y.sumsq)) : 0.0f;
+}
+
 Encoder::Match Encoder::search_p1(const float* row, float unit, double threshold_score, Ctx& ctx) const {
   Match best;
   const uint32_t n = p1_store_.size();
@@ -752,7 +827,7 @@ Q sub_query(const Q& parent, int first_plane, int planes) {
 P6Entry Encoder::encode_growing(const float* texel) {
   sync();
   Ctx ctx;
-  const Match m = encode_p4(texel, ctx, false);
+  const Match m = encode_p4(texel, ctx);
   stats_.texels += 1;
   stats_.comparisons += ctx.counts.comparisons;
   stats_.pruned += ctx.counts.pruned;
@@ -785,103 +860,150 @@ float luminance_range(const float* texel, size_t samples) {
 
 }  // namespace
 
-Encoder::Match Encoder::encode_p4(const float* texel_in, Ctx& ctx, bool exact) {
-  const size_t samples = grid_.samples();
-  const std::vector<float> texel = clamped_texel(texel_in, samples, dyn_);
-  const Query q = texel_query(texel, ctx);
+// Compositions are checked at the scale they were composed with: every child's SSIM values are then
+// the parent's own values (windows never cross planes), and the parent's percentile counts the
+// children's failing values together. So a composition of children that meet the parent's threshold
+// meets it too (floor(0.02 a) + floor(0.02 b) <= floor(0.02 (a + b)); paper 4.4.2). Children are
+// first encoded at their own, looser thresholds (more reuse); when the composition misses, the part
+// with the most failing values is encoded again with the parent's threshold as a cap, until it
+// passes -- at most once per part, and only the parts that need it (no compounding retries). The
+// rows of a 2D plane (P1 rows in P2, I1 rows in I2) and the samples of a row (C values in I1) are
+// compared with other windows than their parent's; those are repaired with exact parts
+// (repair_parts).
+
+double Encoder::threshold(double level, double cap) { return std::min(level, cap); }
+
+// Per part, how badly the composition (planes at scale s against q) misses `bound`: SSIM, the number
+// of values below it; MSE, the squared error. Parts are runs of `part_planes` planes, or for a single
+// M plane its luminance (part 0) and chroma (part 1). Returns whether the whole passes.
+bool Encoder::failing_parts(const Query& q, const PlaneRef* planes, int np, int part_planes, float s, double bound,
+                            Ctx& ctx, std::vector<double>& bad) const {
   const int n = g2_.size();
-  const double p4_bound = bound_for(thresholds_.p4, q.values);
-  if (!exact) {
-    const Match found = search_composite(q, 4, p4_bound, ctx);
-    if (found.index >= 0) return found;
-  }
-  for (int attempt = 0; attempt < 3; ++attempt) {
-    const bool ex = exact || attempt == 2;
-    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
-    std::vector<uint32_t> idx(static_cast<size_t>(grid_.n_phi_v));
-    std::vector<float> sc(idx.size());
-    double bright = 0;
-    for (int p = 0; p < grid_.n_phi_v; ++p) {
-      Query sub = sub_query(q, p * grid_.n_theta_v, grid_.n_theta_v);
-      sub.order_planes(n);
-      const Match r = encode_p3(sub, ctx, ex);
-      idx[size_t(p)] = uint32_t(r.index);
-      sc[size_t(p)] = r.scale;
-      bright += r.scale * p3_bright_[size_t(r.index)];
-    }
-    bright /= grid_.n_phi_v;
-    const float norm = bright > 1e-6 ? float(bright) / normalized_brightness(dyn_) : 1.0f;
-    for (auto& s : sc) s /= norm;
-    // Verify before inserting: the composition must itself be within the P4 threshold.
-    std::vector<PlaneRef> planes;
-    for (int p = 0; p < grid_.n_phi_v; ++p)
-      for (int t = 0; t < grid_.n_theta_v; ++t) {
-        const uint32_t m = books_.p3_index.at(idx[size_t(p)], size_t(t));
-        planes.push_back({books_.m.at(m, 0), books_.m.at(m, 1), sc[size_t(p)] * books_.p3_scale.at(idx[size_t(p)], size_t(t))});
+  const int parts = part_planes > 0 ? np / part_planes : 2;
+  bad.assign(size_t(parts), 0.0);
+  double total = 0;
+  for (int j = 0; j < np; ++j)
+    for (int c = 0; c < 3; ++c) {
+      const ChannelView& x = q.at(j, c);
+      const ChannelView y = c == 0 ? p2_store_.view(planes[j].p2, 0) : i2_store_.view(planes[j].i2, c - 1);
+      const Affine ax = unit_affine(dyn_, c, q.unit), ay = unit_affine(dyn_, c, float(q.unit * s * planes[j].factor));
+      double b = 0;
+      if (settings_.metric == Metric::MSE) {
+        for (int i = 0; i < n; ++i) {
+          const float d = (ax.a + ax.b * x.v[i]) - (ay.a + ay.b * y.v[i]);
+          b += double(d) * d;
+        }
+      } else {
+        const float* v = ssim_values(g2_, x, ax, y, ay, ctx.k.c1[c], ctx.k.c2[c], ctx.scratch.data());
+        for (int i = 0; i < n; ++i) b += double(v[i]) < bound ? 1.0 : 0.0;
       }
-    double score;
-    float s;
-    evaluate_composite(q, planes.data(), int(planes.size()), kNoBound, ctx, &score, &s);
-    if (!ex && score < p4_bound) {
-      ++ctx.counts.fallbacks;
-      continue;
+      bad[size_t(part_planes > 0 ? j / part_planes : (c == 0 ? 0 : 1))] += b;
+      total += b;
     }
-    books_.p4_index.append(idx.data());
-    books_.p4_scale.append(sc.data());
-    cache_p4(uint32_t(books_.p4_index.rows() - 1));
-    return {int64_t(books_.p4_index.rows() - 1), score, s};
-  }
-  throw std::logic_error("unreachable");
+  if (settings_.metric == Metric::MSE) return -total >= bound;
+  return total <= std::floor(settings_.outlier_fraction * double(q.values) + 1e-9);
 }
 
-Encoder::Match Encoder::encode_p3(const Query& q, Ctx& ctx, bool exact) {
-  const double bound = bound_for(thresholds_.p3, q.values);
-  if (!exact) {
-    const Match found = search_composite(q, 3, bound, ctx);
-    if (found.index >= 0) return found;
-  }
-  const int nt = grid_.n_theta_v;
-  for (int attempt = 0; attempt < 3; ++attempt) {
-    const bool ex = exact || attempt == 2;
-    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
-    std::vector<uint32_t> idx(static_cast<size_t>(nt));
-    std::vector<float> sc(static_cast<size_t>(nt));
-    double bright = 0;
-    for (int t = 0; t < nt; ++t) {
-      const Match r = encode_m(sub_query(q, t, 1), ctx, ex);
-      idx[size_t(t)] = uint32_t(r.index);
-      sc[size_t(t)] = r.scale;
-      bright += r.scale * m_bright_[size_t(r.index)];
-    }
-    bright /= nt;
-    const float norm = bright > 1e-6 ? float(bright) / normalized_brightness(dyn_) : 1.0f;
-    std::vector<PlaneRef> planes;
-    for (int t = 0; t < nt; ++t) {
-      sc[size_t(t)] /= norm;
-      const uint32_t m = idx[size_t(t)];
-      planes.push_back({books_.m.at(m, 0), books_.m.at(m, 1), sc[size_t(t)]});
-    }
-    double score;
-    float s;
-    evaluate_composite(q, planes.data(), nt, kNoBound, ctx, &score, &s);
-    if (!ex && score < bound) {
-      ++ctx.counts.fallbacks;
-      continue;
-    }
-    books_.p3_index.append(idx.data());
-    books_.p3_scale.append(sc.data());
-    cache_p3(uint32_t(books_.p3_index.rows() - 1));
-    return {int64_t(books_.p3_index.rows() - 1), score, s};
-  }
-  throw std::logic_error("unreachable");
+// The part to encode again: the worst one not capped yet, or -1 when every failing part is capped.
+int Encoder::worst_part(const std::vector<double>& bad, const std::vector<uint8_t>& capped) {
+  int worst = -1;
+  for (size_t k = 0; k < bad.size(); ++k)
+    if (!capped[k] && bad[k] > 0 && (worst < 0 || bad[k] > bad[size_t(worst)])) worst = int(k);
+  return worst;
 }
 
-Encoder::Match Encoder::encode_m(const Query& q, Ctx& ctx, bool exact) {
-  const double bound = bound_for(thresholds_.m, q.values);
-  if (!exact) {
-    const Match found = search_composite(q, 2, bound, ctx);
-    if (found.index >= 0) return found;
+// The step P4 and P3 share: `n` parts (P3 or M matches) composed at the normalized brightness
+// (the parts' scales divided by it), checked as a whole against `bound`; while it misses, the worst
+// part not capped yet is encoded again by encode_part(k, repair_cap). planes_of(entry, factor, out)
+// appends a part's planes; `bright` holds the part code-book's brightness per entry.
+template <class EncodePart, class PlanesOf>
+Encoder::Composite Encoder::compose(const Query& q, int n, int part_planes, const std::vector<float>& bright,
+                                    double bound, double repair_cap, Ctx& ctx, EncodePart encode_part,
+                                    PlanesOf planes_of) {
+  std::vector<Match> part(static_cast<size_t>(n));
+  for (int k = 0; k < n; ++k) part[size_t(k)] = encode_part(k, kNoCap);
+  Composite c;
+  c.index.resize(size_t(n));
+  c.scale.resize(size_t(n));
+  std::vector<double> bad;
+  std::vector<uint8_t> capped(static_cast<size_t>(n), 0);
+  for (;;) {
+    double b = 0;
+    for (const Match& m : part) b += m.scale * bright[size_t(m.index)];
+    c.norm = normalization(b / n);
+    c.planes.clear();
+    for (int k = 0; k < n; ++k) {
+      c.index[size_t(k)] = uint32_t(part[size_t(k)].index);
+      c.scale[size_t(k)] = part[size_t(k)].scale / c.norm;
+      planes_of(c.index[size_t(k)], c.scale[size_t(k)], c.planes);
+    }
+    if (failing_parts(q, c.planes.data(), int(c.planes.size()), part_planes, c.norm, bound, ctx, bad)) break;
+    const int w = worst_part(bad, capped);
+    if (w < 0) break;  // every failing part meets the threshold on its own: rounding
+    const CauseScope<Cause> cause(cause_, kRetry);
+    part[size_t(w)] = encode_part(w, repair_cap);
+    capped[size_t(w)] = 1;
+    ++ctx.counts.fallbacks;
   }
+  float s = c.norm;
+  evaluate_composite(q, c.planes.data(), int(c.planes.size()), kNoBound, ctx, &c.score, &s, true);
+  return c;
+}
+
+Encoder::Match Encoder::encode_p4(const float* texel_in, Ctx& ctx) {
+  const std::vector<float> texel = clamped_texel(texel_in, grid_.samples(), dyn_);
+  const Query q = texel_query(texel, ctx);
+  const int n = g2_.size(), nt = grid_.n_theta_v;
+  const double bound = bound_for(thresholds_.p4, q.values);
+  const Match found = search_composite(q, 4, bound, ctx);
+  if (found.index >= 0) return found;
+  const Composite c = compose(
+      q, grid_.n_phi_v, nt, p3_bright_, bound, thresholds_.p4, ctx,
+      [&](int p, double cap) {
+        Query sub = sub_query(q, p * nt, nt);
+        sub.order_planes(n);
+        return encode_p3(sub, ctx, cap);
+      },
+      [&](uint32_t p3, float factor, std::vector<PlaneRef>& out) {
+        for (int t = 0; t < nt; ++t) {
+          const uint32_t m = books_.p3_index.at(p3, size_t(t));
+          out.push_back({books_.m.at(m, 0), books_.m.at(m, 1), factor * books_.p3_scale.at(p3, size_t(t))});
+        }
+      });
+  bool added;
+  const uint32_t e = insert_row(CodebookId::P4, p4_rows_, books_.p4_index, c.index.data(), &books_.p4_scale, c.scale.data(), &added);
+  if (added) {
+    cache_p4(e);
+    count_insert(CodebookId::P4, false);
+  }
+  return {int64_t(e), c.score, c.norm};
+}
+
+Encoder::Match Encoder::encode_p3(const Query& q, Ctx& ctx, double cap) {
+  const double t3 = threshold(thresholds_.p3, cap);
+  const double bound = bound_for(t3, q.values);
+  const Match found = search_composite(q, 3, bound, ctx);
+  if (found.index >= 0) return found;
+  const Composite c = compose(
+      q, grid_.n_theta_v, 1, m_bright_, bound, t3, ctx,
+      [&](int t, double part_cap) { return encode_m(sub_query(q, t, 1), ctx, part_cap); },
+      [&](uint32_t m, float factor, std::vector<PlaneRef>& out) {
+        out.push_back({books_.m.at(m, 0), books_.m.at(m, 1), factor});
+      });
+  bool added;
+  const uint32_t e = insert_row(CodebookId::P3, p3_rows_, books_.p3_index, c.index.data(), &books_.p3_scale, c.scale.data(), &added);
+  if (added) {
+    cache_p3(e);
+    count_insert(CodebookId::P3, false);
+  }
+  return {int64_t(e), c.score, c.norm};
+}
+
+Encoder::Match Encoder::encode_m(const Query& q, Ctx& ctx, double cap) {
+  const double tm = threshold(thresholds_.m, cap);
+  const double bound = bound_for(tm, q.values);
+  const Match found = search_composite(q, 2, bound, ctx);
+  if (found.index >= 0) return found;
   // Normalize the slice to the fixed brightness, so that P2 and I2 entries are shared across
   // brightness; the parent's scale restores it. Comparisons below stay in absolute units.
   const int n = g2_.size();
@@ -914,104 +1036,216 @@ Encoder::Match Encoder::encode_m(const Query& q, Ctx& ctx, bool exact) {
                                      st.data() + size_t((2 * c + 1) * n));
     (c == 0 ? lq : cq).views.push_back(cv);
   }
-  for (int attempt = 0; attempt < 3; ++attempt) {
-    const bool ex = exact || attempt == 2;
-    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
-    const uint32_t p2 = encode_p2(lq, ctx, ex);
-    const uint32_t i2 = encode_i2(cq, ctx, ex);
-    const PlaneRef plane{p2, i2, 1.0f};
-    double score;
-    float s;
-    evaluate_composite(q, &plane, 1, kNoBound, ctx, &score, &s);
-    if (!ex && score < bound) {
-      ++ctx.counts.fallbacks;
-      continue;
-    }
-    const uint64_t key = (uint64_t(p2) << 32) | i2;
-    const auto it = m_lookup_.find(key);
-    if (it != m_lookup_.end()) return {int64_t(it->second), score, s};
-    const uint32_t pair[2] = {p2, i2};
-    books_.m.append(pair);
-    cache_m(uint32_t(books_.m.rows() - 1));
-    return {int64_t(books_.m.rows() - 1), score, s};
+  uint32_t halves[2] = {encode_p2(lq, ctx, kNoCap), encode_i2(cq, ctx, kNoCap)};
+  std::vector<double> bad;
+  std::vector<uint8_t> capped(2, 0);
+  for (;;) {
+    const PlaneRef plane{halves[0], halves[1], 1.0f};
+    if (failing_parts(q, &plane, 1, 0, norm, bound, ctx, bad)) break;
+    const int w = worst_part(bad, capped);
+    if (w < 0) break;
+    const CauseScope<Cause> cause(cause_, kRetry);
+    halves[w] = w == 0 ? encode_p2(lq, ctx, tm) : encode_i2(cq, ctx, tm);
+    capped[size_t(w)] = 1;
+    ++ctx.counts.fallbacks;
   }
-  throw std::logic_error("unreachable");
+  const PlaneRef plane{halves[0], halves[1], 1.0f};
+  double score;
+  float s = norm;
+  evaluate_composite(q, &plane, 1, kNoBound, ctx, &score, &s, true);
+  const uint64_t key = (uint64_t(halves[0]) << 32) | halves[1];
+  if (const auto it = m_lookup_.find(key); it != m_lookup_.end()) {
+    ++stats_.reused[CodebookId::M];
+    return {int64_t(it->second), score, s};
+  }
+  books_.m.append(halves);
+  cache_m(uint32_t(books_.m.rows() - 1));
+  count_insert(CodebookId::M, false);
+  return {int64_t(books_.m.rows() - 1), score, s};
 }
 
-uint32_t Encoder::encode_p2(const Query& q, Ctx& ctx, bool exact) {
-  const double bound = bound_for(thresholds_.p2, q.values);
-  if (!exact) {
-    const Match found = search_p2(q, bound, ctx);
-    if (found.index >= 0) return uint32_t(found.index);
+// A composition made of parts -- the rows of a plane of g (by_column false) or the samples of a
+// row (true) -- in channels [first, first + nc): the slice x and its composition y (absolute units
+// via `unit`) checked against `bound`. While it misses, the worst part that is not exact yet (the
+// largest squared error among the parts under a window that holds a failing value) is first offered
+// to reuse(part, badness) -- which may put a stored alternative into y if it lowers badness(), the
+// composition's failing values (or squared error) -- and, once that has been tried, to
+// make_exact(part), which rewrites that part of y exactly. An exact part reproduces the slice, so
+// this ends after at most two repairs per part.
+template <class Reuse, class MakeExact>
+void Encoder::repair_parts(const WindowGeometry& g, bool by_column, const ChannelView* x, int first, int nc,
+                           float unit, float* y, std::vector<uint8_t>& exact, double bound, Ctx& ctx, Reuse reuse,
+                           MakeExact make_exact) {
+  const int cols = g.cols(), n = g.size(), parts = by_column ? g.cols() : g.rows();
+  std::vector<float> st(static_cast<size_t>(2 * n * nc));
+  std::vector<double> err(static_cast<size_t>(parts));
+  std::vector<uint8_t> involved(static_cast<size_t>(parts)), tried(static_cast<size_t>(parts), 0);
+  const size_t total = size_t(n) * size_t(nc);
+  const double allowed = std::floor(settings_.outlier_fraction * double(total) + 1e-9);
+  const bool mse = settings_.metric == Metric::MSE;
+  // Failing values (SSIM) or the squared error (MSE) of y, marking the parts under failing windows.
+  auto badness = [&]() {
+    std::fill(involved.begin(), involved.end(), 0);
+    double bad = 0;
+    for (int c = 0; c < nc; ++c) {
+      const Affine a = unit_affine(dyn_, first + c, unit);
+      const float* yc = y + size_t(c * n);
+      if (mse) {
+        for (int i = 0; i < n; ++i) {
+          const float d = a.b * (x[c].v[i] - yc[i]);
+          bad += double(d) * d;
+        }
+        continue;
+      }
+      const ChannelView yv = make_view(g, yc, st.data() + size_t(2 * c * n), st.data() + size_t((2 * c + 1) * n));
+      const float* v = ssim_values(g, x[c], a, yv, a, ctx.k.c1[first + c], ctx.k.c2[first + c], ctx.scratch.data());
+      for (int i = 0; i < n; ++i)
+        if (double(v[i]) < bound) {
+          bad += 1;
+          const int at = by_column ? i % cols : i / cols;
+          for (int k = std::max(0, at - g.radius()); k <= std::min(parts - 1, at + g.radius()); ++k) involved[size_t(k)] = 1;
+        }
+    }
+    return bad;
+  };
+  for (;;) {
+    const double bad = badness();
+    if (mse ? -bad >= bound : bad <= allowed) return;
+    int worst = -1;
+    for (int k = 0; k < parts; ++k) {
+      if (exact[size_t(k)] || (!mse && !involved[size_t(k)])) continue;
+      double e = 0;
+      for (int c = 0; c < nc; ++c)
+        for (int i = 0; i < n; ++i)
+          if ((by_column ? i % cols : i / cols) == k) {
+            const double d = x[c].v[i] - y[size_t(c * n + i)];
+            e += d * d;
+          }
+      err[size_t(k)] = e;
+      if (worst < 0 || e > err[size_t(worst)]) worst = k;
+    }
+    if (worst < 0) return;  // every involved part is exact: what remains is rounding
+    ++ctx.counts.fallbacks;
+    if (!tried[size_t(worst)]) {
+      tried[size_t(worst)] = 1;
+      if (reuse(worst, bad, badness)) continue;
+    }
+    make_exact(worst);
+    exact[size_t(worst)] = 1;
   }
+}
+
+// The best of `candidates` for one part of a composition by the composition's own measure:
+// try(e) puts candidate e into the composition, badness() measures it, restore() puts the part back.
+// Keeps the best (fewest failing values; ties to the earlier candidate) if it beats `now`.
+template <class Try, class Badness, class Restore>
+bool keep_best(const std::vector<uint32_t>& candidates, double now, Try put, Badness badness, Restore restore) {
+  int64_t best = -1;
+  double best_bad = now;
+  for (uint32_t e : candidates) {
+    put(e);
+    const double b = badness();
+    if (b < best_bad) {
+      best_bad = b;
+      best = e;
+    }
+  }
+  if (best < 0) {
+    restore();
+    return false;
+  }
+  put(uint32_t(best));
+  return true;
+}
+
+uint32_t Encoder::encode_p2(const Query& q, Ctx& ctx, double cap) {
+  const double bound = bound_for(threshold(thresholds_.p2, cap), q.values);
+  const Match found = search_p2(q, bound, ctx);
+  if (found.index >= 0) return uint32_t(found.index);
   const int na = grid_.n_alpha, nb = grid_.n_beta, n = na * nb;
-  std::vector<float> recon(static_cast<size_t>(n)), st(static_cast<size_t>(2 * n));
+  std::vector<float> recon(static_cast<size_t>(n));
   std::vector<uint32_t> idx(static_cast<size_t>(na));
   std::vector<float> sc(static_cast<size_t>(na));
+  std::vector<uint8_t> exact(static_cast<size_t>(na), 0);
   const ChannelView& x = q.at(0, 0);
-  const Affine ax = unit_affine(dyn_, 0, q.unit);
-  for (int attempt = 0; attempt < 3; ++attempt) {
-    const bool ex = exact || attempt == 2;
-    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
-    for (int a = 0; a < na; ++a) {
-      const Match r = encode_p1(x.v + a * nb, q.unit, ctx, ex);
-      idx[size_t(a)] = uint32_t(r.index);
-      sc[size_t(a)] = r.scale;
-      const float* row = books_.p1.row(idx[size_t(a)]);
-      for (int b = 0; b < nb; ++b) recon[size_t(a * nb + b)] = r.scale * row[b];
-    }
-    const ChannelView y = make_view(g2_, recon.data(), st.data(), st.data() + n);
-    ctx.acc.reset(settings_.metric, size_t(n), settings_.outlier_fraction, kNoBound);
-    accumulate_channel(g2_, settings_.metric, x, ax, y, ax, ctx.k.c1[0], ctx.k.c2[0], ctx.acc, ctx.scratch.data());
-    if (!ex && ctx.acc.score() < bound) {
-      ++ctx.counts.fallbacks;
-      continue;
-    }
-    books_.p2_index.append(idx.data());
-    books_.p2_scale.append(sc.data());
-    cache_p2(uint32_t(books_.p2_index.rows() - 1));
-    return uint32_t(books_.p2_index.rows() - 1);
+  auto place = [&](int a, const Match& r) {
+    idx[size_t(a)] = uint32_t(r.index);
+    sc[size_t(a)] = r.scale;
+    const float* row = books_.p1.row(idx[size_t(a)]);
+    for (int b = 0; b < nb; ++b) recon[size_t(a * nb + b)] = r.scale * row[b];
+  };
+  for (int a = 0; a < na; ++a) {
+    const Match r = encode_p1(x.v + a * nb, q.unit, ctx, false);
+    exact[size_t(a)] = r.score >= 1.0;
+    place(a, r);
   }
-  throw std::logic_error("unreachable");
+  {
+    const CauseScope<Cause> cause(cause_, kRetry);
+    auto reuse = [&](int a, double now, const auto& badness) {
+      const Match kept{int64_t(idx[size_t(a)]), 0.0, sc[size_t(a)]};
+      float shape[256];
+      unit_shape(x.v + a * nb, nb, shape);
+      p1_index_.nearest(shape, kReuseCandidates, kProbes, ctx.order);
+      const std::vector<uint32_t> candidates = ctx.order;
+      return keep_best(
+          candidates, now, [&](uint32_t e) { place(a, {int64_t(e), 0.0, p1_scale(x.v + a * nb, e)}); }, badness,
+          [&] { place(a, kept); });
+    };
+    repair_parts(g2_, false, &x, 0, 1, q.unit, recon.data(), exact, bound, ctx, reuse,
+                 [&](int a) { place(a, encode_p1(x.v + a * nb, q.unit, ctx, true)); });
+  }
+  bool added;
+  const uint32_t e = insert_row(CodebookId::P2, p2_rows_, books_.p2_index, idx.data(), &books_.p2_scale, sc.data(), &added);
+  if (added) {
+    cache_p2(e);
+    count_insert(CodebookId::P2, false);
+  }
+  return e;
 }
 
-uint32_t Encoder::encode_i2(const Query& q, Ctx& ctx, bool exact) {
-  const double bound = bound_for(thresholds_.i2, q.values);
-  if (!exact) {
-    const Match found = search_i2(q, bound, ctx);
-    if (found.index >= 0) return uint32_t(found.index);
-  }
+uint32_t Encoder::encode_i2(const Query& q, Ctx& ctx, double cap) {
+  const double bound = bound_for(threshold(thresholds_.i2, cap), q.values);
+  const Match found = search_i2(q, bound, ctx);
+  if (found.index >= 0) return uint32_t(found.index);
   const int na = grid_.n_alpha, nb = grid_.n_beta, n = na * nb;
-  std::vector<float> recon(static_cast<size_t>(2 * n)), st(static_cast<size_t>(4 * n)), row(static_cast<size_t>(2 * nb));
+  std::vector<float> recon(static_cast<size_t>(2 * n)), row(static_cast<size_t>(2 * nb));
   std::vector<uint32_t> idx(static_cast<size_t>(na));
-  for (int attempt = 0; attempt < 3; ++attempt) {
-    const bool ex = exact || attempt == 2;
-    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
-    for (int a = 0; a < na; ++a) {
-      std::copy(q.at(0, 1).v + a * nb, q.at(0, 1).v + (a + 1) * nb, row.begin());
-      std::copy(q.at(0, 2).v + a * nb, q.at(0, 2).v + (a + 1) * nb, row.begin() + nb);
-      idx[size_t(a)] = encode_i1(row.data(), q.unit, ctx, ex);
-      const float* y = i1_store_.values(idx[size_t(a)]);
-      std::copy(y, y + nb, recon.begin() + a * nb);
-      std::copy(y + nb, y + 2 * nb, recon.begin() + n + a * nb);
-    }
-    ctx.acc.reset(settings_.metric, size_t(2 * n), settings_.outlier_fraction, kNoBound);
-    for (int c = 1; c <= 2; ++c) {
-      const ChannelView y = make_view(g2_, recon.data() + size_t((c - 1) * n), st.data() + size_t(2 * (c - 1) * n),
-                                      st.data() + size_t((2 * (c - 1) + 1) * n));
-      const Affine a = unit_affine(dyn_, c, q.unit);
-      accumulate_channel(g2_, settings_.metric, q.at(0, c), a, y, a, ctx.k.c1[c], ctx.k.c2[c], ctx.acc,
-                         ctx.scratch.data());
-    }
-    if (!ex && ctx.acc.score() < bound) {
-      ++ctx.counts.fallbacks;
-      continue;
-    }
-    books_.i2.append(idx.data());
-    cache_i2(uint32_t(books_.i2.rows() - 1));
-    return uint32_t(books_.i2.rows() - 1);
+  std::vector<uint8_t> exact(static_cast<size_t>(na), 0);
+  const ChannelView x[2] = {q.at(0, 1), q.at(0, 2)};
+  auto encode_row = [&](int a, bool ex) {
+    std::copy(x[0].v + a * nb, x[0].v + (a + 1) * nb, row.begin());
+    std::copy(x[1].v + a * nb, x[1].v + (a + 1) * nb, row.begin() + nb);
+    idx[size_t(a)] = encode_i1(row.data(), q.unit, ctx, ex);
+    const float* y = i1_store_.values(idx[size_t(a)]);
+    std::copy(y, y + nb, recon.begin() + a * nb);
+    std::copy(y + nb, y + 2 * nb, recon.begin() + n + a * nb);
+  };
+  for (int a = 0; a < na; ++a) encode_row(a, false);
+  auto place = [&](int a, uint32_t e) {
+    idx[size_t(a)] = e;
+    const float* y = i1_store_.values(e);
+    std::copy(y, y + nb, recon.begin() + a * nb);
+    std::copy(y + nb, y + 2 * nb, recon.begin() + n + a * nb);
+  };
+  {
+    const CauseScope<Cause> cause(cause_, kRetry);
+    auto reuse = [&](int a, double now, const auto& badness) {
+      const uint32_t kept = idx[size_t(a)];
+      std::copy(x[0].v + a * nb, x[0].v + (a + 1) * nb, row.begin());
+      std::copy(x[1].v + a * nb, x[1].v + (a + 1) * nb, row.begin() + nb);
+      i1_index_.nearest(row.data(), kReuseCandidates, kProbes, ctx.order);
+      const std::vector<uint32_t> candidates = ctx.order;
+      return keep_best(candidates, now, [&](uint32_t e) { place(a, e); }, badness, [&] { place(a, kept); });
+    };
+    repair_parts(g2_, false, x, 1, 2, q.unit, recon.data(), exact, bound, ctx, reuse, [&](int a) { encode_row(a, true); });
   }
-  throw std::logic_error("unreachable");
+  bool added;
+  const uint32_t e = insert_row<uint32_t, uint32_t>(CodebookId::I2, i2_rows_, books_.i2, idx.data(), nullptr, nullptr, &added);
+  if (added) {
+    cache_i2(e);
+    count_insert(CodebookId::I2, false);
+  }
+  return e;
 }
 
 Encoder::Match Encoder::encode_p1(const float* row, float unit, Ctx& ctx, bool exact) {
@@ -1024,9 +1258,13 @@ Encoder::Match Encoder::encode_p1(const float* row, float unit, Ctx& ctx, bool e
   for (int b = 0; b < nb; ++b) sum += row[b];
   std::vector<float> density(static_cast<size_t>(nb));
   for (int b = 0; b < nb; ++b) density[size_t(b)] = sum > 0 ? float(row[b] / sum) : 1.0f / float(nb);
-  books_.p1.append(density.data());
-  cache_p1(uint32_t(books_.p1.rows() - 1));
-  return {int64_t(books_.p1.rows() - 1), 1.0, float(std::max(0.0, sum))};
+  bool added;
+  const uint32_t e = insert_row<float, float>(CodebookId::P1, p1_rows_, books_.p1, density.data(), nullptr, nullptr, &added);
+  if (added) {
+    cache_p1(e);
+    count_insert(CodebookId::P1, exact);
+  }
+  return {int64_t(e), 1.0, float(std::max(0.0, sum))};
 }
 
 uint32_t Encoder::encode_i1(const float* row, float unit, Ctx& ctx, bool exact) {
@@ -1036,39 +1274,36 @@ uint32_t Encoder::encode_i1(const float* row, float unit, Ctx& ctx, bool exact) 
     const Match found = search_i1(row, unit, bound, ctx);
     if (found.index >= 0) return uint32_t(found.index);
   }
-  std::vector<float> recon(static_cast<size_t>(2 * nb)), st(static_cast<size_t>(8 * nb));
+  std::vector<float> recon(static_cast<size_t>(2 * nb));
   std::vector<uint32_t> idx(static_cast<size_t>(nb));
-  for (int attempt = 0; attempt < 3; ++attempt) {
-    const bool ex = exact || attempt == 2;
-    const TightenedScope tightened(thresholds_, attempt == 1 ? kRetryFactor : 1.0);
-    for (int b = 0; b < nb; ++b) {
-      idx[size_t(b)] = encode_c(row[b], row[nb + b], unit, ex);
-      recon[size_t(b)] = books_.c.at(idx[size_t(b)], 0);
-      recon[size_t(nb + b)] = books_.c.at(idx[size_t(b)], 1);
-    }
-    ctx.acc.reset(settings_.metric, size_t(2 * nb), settings_.outlier_fraction, kNoBound);
-    for (int c = 1; c <= 2; ++c) {
-      float* s = st.data() + size_t(4 * (c - 1) * nb);
-      const ChannelView x = make_view(g1_, row + (c - 1) * nb, s, s + nb);
-      const ChannelView y = make_view(g1_, recon.data() + (c - 1) * nb, s + 2 * nb, s + 3 * nb);
-      const Affine a = unit_affine(dyn_, c, unit);
-      accumulate_channel(g1_, settings_.metric, x, a, y, a, ctx.k.c1[c], ctx.k.c2[c], ctx.acc, ctx.scratch.data());
-    }
-    if (!ex && ctx.acc.score() < bound) {
-      ++ctx.counts.fallbacks;
-      continue;
-    }
-    books_.i1.append(idx.data());
-    cache_i1(uint32_t(books_.i1.rows() - 1));
-    return uint32_t(books_.i1.rows() - 1);
+  std::vector<uint8_t> exact_c(static_cast<size_t>(nb), 0);
+  auto place = [&](int b, bool ex) {
+    idx[size_t(b)] = encode_c(row[b], row[nb + b], unit, ex);
+    recon[size_t(b)] = books_.c.at(idx[size_t(b)], 0);
+    recon[size_t(nb + b)] = books_.c.at(idx[size_t(b)], 1);
+  };
+  for (int b = 0; b < nb; ++b) place(b, exact);
+  if (!exact) {
+    std::vector<float> st(static_cast<size_t>(4 * nb));
+    const ChannelView x[2] = {make_view(g1_, row, st.data(), st.data() + nb),
+                              make_view(g1_, row + nb, st.data() + 2 * nb, st.data() + 3 * nb)};
+    const CauseScope<Cause> cause(cause_, kRetry);
+    auto no_reuse = [](int, double, const auto&) { return false; };
+    repair_parts(g1_, true, x, 1, 2, unit, recon.data(), exact_c, bound, ctx, no_reuse, [&](int b) { place(b, true); });
   }
-  throw std::logic_error("unreachable");
+  bool added;
+  const uint32_t e = insert_row<uint32_t, uint32_t>(CodebookId::I1, i1_rows_, books_.i1, idx.data(), nullptr, nullptr, &added);
+  if (added) {
+    cache_i1(e);
+    count_insert(CodebookId::I1, exact);
+  }
+  return e;
 }
 
 uint32_t Encoder::encode_c(float a, float b, float unit, bool exact) {
   // Plain Euclidean distance in absolute units (paper 4.4.1: a small constant threshold).
   const float ga = channel_scales(dyn_, 1) ? unit : 1.0f, gb = channel_scales(dyn_, 2) ? unit : 1.0f;
-  const double limit = exact ? 0.0 : thresholds_.c * thresholds_.c;
+  const double limit = exact ? kExactC * kExactC : thresholds_.c * thresholds_.c;
   int64_t best = -1;
   double best_d = std::numeric_limits<double>::infinity();
   const float* c = books_.c.data().data();
@@ -1099,8 +1334,12 @@ uint32_t Encoder::encode_c(float a, float b, float unit, bool exact) {
   }
   if (best >= 0 && best_d <= limit) return uint32_t(best);
   const float v[2] = {a, b};
-  const uint32_t e = books_.c.append(v);
-  index_c(e);
+  bool added;
+  const uint32_t e = insert_row<float, float>(CodebookId::C, c_rows_, books_.c, v, nullptr, nullptr, &added);
+  if (added) {
+    index_c(e);
+    count_insert(CodebookId::C, exact);
+  }
   return e;
 }
 

@@ -54,6 +54,11 @@ struct EncoderStats {
   uint64_t pruned = 0;       // of which abandoned early
   uint64_t fallbacks = 0;    // new entries re-encoded exactly because their composition missed
   uint64_t laesa_skipped = 0;  // P4 candidates excluded by the MSE pivot bound (of `pruned`)
+  // New rows per code-book by cause: a search miss whose composition matched at once, one inserted
+  // while re-encoding a composition that missed its parent's threshold (retry), or an exact one.
+  CodebookSizes inserted_miss, inserted_retry, inserted_exact;
+  CodebookSizes reused;  // insertions that found the very same row stored already
+  void add(const EncoderStats& o);
 };
 
 // What the batched phase-3 search needs of one texel, computed once: its values with luminance
@@ -130,12 +135,14 @@ class Encoder {
   void cache_p4(uint32_t e);
 
   double bound_for(double threshold, size_t values) const;
+  float normalization(double bright) const;
   void planes_of_p4(uint32_t e, std::vector<PlaneRef>& out) const;
   void planes_of_p3(uint32_t e, std::vector<PlaneRef>& out) const;
 
   // Scores a composite candidate (list of M planes) against the query with its best scale.
+  // fixed_scale: the composition at *scale as given (its own scale), else at its least-squares best.
   bool evaluate_composite(const Query& q, const PlaneRef* planes, int np, double bound, Ctx& ctx, double* score,
-                          float* scale) const;
+                          float* scale, bool fixed_scale = false) const;
   Match search_composite(const Query& q, int level, double bound, Ctx& ctx) const;
   // search_composite in two steps: the candidate order (into ctx.order), then the search.
   void order_composite(const Query& q, int level, Ctx& ctx) const;
@@ -149,14 +156,45 @@ class Encoder {
   Match search_p1(const float* row, float unit, double bound, Ctx& ctx) const;
   Match search_i1(const float* row, float unit, double bound, Ctx& ctx) const;
 
-  Match encode_p4(const float* texel, Ctx& ctx, bool exact);
-  Match encode_p3(const Query& q, Ctx& ctx, bool exact);
-  Match encode_m(const Query& q, Ctx& ctx, bool exact);
-  uint32_t encode_p2(const Query& q, Ctx& ctx, bool exact);
-  uint32_t encode_i2(const Query& q, Ctx& ctx, bool exact);
+  // cap: the threshold a repair imposes (the parent's); kNoCap (infinity) leaves the level's own.
+  Match encode_p4(const float* texel, Ctx& ctx);
+  Match encode_p3(const Query& q, Ctx& ctx, double cap);
+  Match encode_m(const Query& q, Ctx& ctx, double cap);
+  uint32_t encode_p2(const Query& q, Ctx& ctx, double cap);
+  uint32_t encode_i2(const Query& q, Ctx& ctx, double cap);
+  static double threshold(double level, double cap);
+  struct Composite {
+    std::vector<uint32_t> index;
+    std::vector<float> scale;  // of each part, divided by norm
+    std::vector<PlaneRef> planes;
+    float norm = 1;  // the composition's own scale (its brightness over the fixed one)
+    double score = 0;
+  };
+  template <class EncodePart, class PlanesOf>
+  Composite compose(const Query& q, int n, int part_planes, const std::vector<float>& bright, double bound,
+                    double repair_cap, Ctx& ctx, EncodePart encode_part, PlanesOf planes_of);
+  bool failing_parts(const Query& q, const PlaneRef* planes, int np, int part_planes, float s, double bound, Ctx& ctx,
+                     std::vector<double>& bad) const;
+  static int worst_part(const std::vector<double>& bad, const std::vector<uint8_t>& capped);
+  template <class Reuse, class MakeExact>
+  void repair_parts(const WindowGeometry& g, bool by_column, const ChannelView* x, int first, int nc, float unit,
+                    float* y, std::vector<uint8_t>& exact, double bound, Ctx& ctx, Reuse reuse, MakeExact make_exact);
+  // The raw least-squares scale of P1 row e for the absolute row x (the P2 scale of a density).
+  float p1_scale(const float* x, uint32_t e) const;
   Match encode_p1(const float* row, float unit, Ctx& ctx, bool exact);
   uint32_t encode_i1(const float* row /* a, then b */, float unit, Ctx& ctx, bool exact);
   uint32_t encode_c(float a, float b, float unit, bool exact);
+
+  // Rows by content (hash -> ids), so that no row is stored twice.
+  struct ContentIndex {
+    std::unordered_map<uint64_t, std::vector<uint32_t>> ids;
+  };
+  enum Cause { kMiss = 0, kRetry = 1, kExact = 2 };
+  Cause cause_ = kMiss;  // of the insertions below the attempt being encoded
+  template <class A, class B>
+  uint32_t insert_row(CodebookId id, ContentIndex& index, Table<A>& ta, const A* a, Table<B>* tb, const B* b,
+                      bool* added);
+  void count_insert(CodebookId id, bool exact);
 
   Codebooks& books_;
   Dynamic dyn_;
@@ -173,6 +211,7 @@ class Encoder {
   std::vector<float> p2_sig_, i2_sig_;                 // row means
   std::vector<float> m_bright_, p3_bright_, p4_bright_;  // mean of (Y - offset)
   std::unordered_map<uint64_t, uint32_t> m_lookup_;    // (P2, I2) -> M
+  ContentIndex p1_rows_, c_rows_, i1_rows_, i2_rows_, p2_rows_, p3_rows_, p4_rows_;
   // C entries bucketed on a square grid of their stored (a, b) values: a C search only visits the
   // cells within its acceptance radius (exactly the linear scan's choice; used when pruning is on).
   std::unordered_map<uint64_t, std::vector<uint32_t>> c_grid_;

@@ -85,12 +85,12 @@ void ProxyIndex::nearest(const float* q, int k, int probes, std::vector<uint32_t
   std::partial_sort(ranked.begin(), ranked.begin() + std::ptrdiff_t(p), ranked.end());
   thread_local std::vector<Ranked> members;
   members.clear();
-  const size_t budget = std::max<size_t>(256, 16 * size_t(k));
-  for (size_t j = 0; j < p && members.size() < budget; ++j) {
+  // Every member of the probed lists: a scan budget spent in insertion order never returned the
+  // entries past a long list's first few hundred, and their rows were inserted again.
+  for (size_t j = 0; j < p; ++j) {
     const std::vector<uint32_t>& ids = lists_[ranked[j].id];
     const float* v = list_vectors_[ranked[j].id].data();
-    const size_t m = std::min(ids.size(), budget - members.size());
-    for (size_t i = 0; i < m; ++i) members.push_back({distance2(q, v + i * size_t(dim_)), ids[i]});
+    for (size_t i = 0; i < ids.size(); ++i) members.push_back({distance2(q, v + i * size_t(dim_)), ids[i]});
   }
   const size_t n = std::min(members.size(), size_t(k));
   std::partial_sort(members.begin(), members.begin() + std::ptrdiff_t(n), members.end());

@@ -26,9 +26,9 @@ class ProxyIndex {
 
   // Adds a vector; its id is the previous size().
   void insert(const float* v);
-  // Up to k ids, nearest first (ties to the lower id), among the lists of the `probes` leaders
-  // nearest to q, scanning at most max(256, 16 k) members (dense regions of real data gather tens of
-  // thousands of entries in one list). An approximate search: an entry not scanned is never returned.
+  // Up to k ids, nearest first (ties to the lower id), among every member of the lists of the
+  // `probes` leaders nearest to q. Approximate only in that an entry nearer than those leaders'
+  // members but in another list is not seen.
   void nearest(const float* q, int k, int probes, std::vector<uint32_t>& out) const;
 
  private:

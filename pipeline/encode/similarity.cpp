@@ -21,6 +21,7 @@ SimilaritySettings SimilaritySettings::from(const ParameterDictionary& d) {
   s.outlier_fraction = d.number("similarity.outlier_fraction", 0.0, 0.5);
   s.k1 = d.number("similarity.k1", 1e-6, 1.0);
   s.k2 = d.number("similarity.k2", 1e-6, 1.0);
+  s.chroma_k2 = d.number("similarity.chroma_k2", 1e-6, 1.0);
   s.window_radius = d.integer("similarity.window_radius", 0, 5);
   s.pruning = d.boolean("similarity.pruning");
   s.proxy_candidates = d.integer("similarity.proxy_candidates", 0, 1 << 20);
@@ -155,7 +156,8 @@ SsimConstants SsimConstants::make(const SimilaritySettings& s, Dynamic dyn, floa
   for (int c = 0; c < 3; ++c) {
     const double L = (dyn == Dynamic::HDR && c == 0) ? std::max(double(luminance_range), 1e-12) : 255.0;
     k.c1[c] = float((s.k1 * L) * (s.k1 * L));
-    k.c2[c] = float((s.k2 * L) * (s.k2 * L));
+    const double k2 = c == 0 ? s.k2 : s.chroma_k2;
+    k.c2[c] = float((k2 * L) * (k2 * L));
   }
   return k;
 }
@@ -227,17 +229,9 @@ double dissimilarity_to_score(Metric m, double d, size_t total_values) {
   return -d * double(std::max<size_t>(1, total_values));
 }
 
-bool accumulate_channel(const WindowGeometry& g, Metric metric, const ChannelView& x, Affine ax, const ChannelView& y,
-                        Affine ay, float c1, float c2, ScoreAccumulator& acc, float* scratch) {
+float* ssim_values(const WindowGeometry& g, const ChannelView& x, Affine ax, const ChannelView& y, Affine ay, float c1,
+                   float c2, float* scratch) {
   const int n = g.size();
-  if (metric == Metric::MSE) {
-    double s = 0;
-    for (int i = 0; i < n; ++i) {
-      const float d = (ax.a + ax.b * x.v[i]) - (ay.a + ay.b * y.v[i]);
-      s += double(d) * d;
-    }
-    return acc.add_squared_error(s);
-  }
   float* prod = scratch;
   float* exy = scratch + n;
   float* tmp = scratch + 2 * n;
@@ -252,7 +246,21 @@ bool accumulate_channel(const WindowGeometry& g, Metric metric, const ChannelVie
     const float vx = bxx * x.var[i], vy = byy * y.var[i];
     ssim[i] = ((2 * mx * my + c1) * (2 * cov + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2));
   }
-  return acc.add_ssim(ssim, n);
+  return ssim;
+}
+
+bool accumulate_channel(const WindowGeometry& g, Metric metric, const ChannelView& x, Affine ax, const ChannelView& y,
+                        Affine ay, float c1, float c2, ScoreAccumulator& acc, float* scratch) {
+  const int n = g.size();
+  if (metric == Metric::MSE) {
+    double s = 0;
+    for (int i = 0; i < n; ++i) {
+      const float d = (ax.a + ax.b * x.v[i]) - (ay.a + ay.b * y.v[i]);
+      s += double(d) * d;
+    }
+    return acc.add_squared_error(s);
+  }
+  return acc.add_ssim(ssim_values(g, x, ax, y, ay, c1, c2, scratch), n);
 }
 
 bool min_ssim_row(const WindowGeometry& g, const ChannelView& x, Affine ax, const ChannelView& y, Affine ay, float c1,

@@ -31,6 +31,7 @@ struct SimilaritySettings {
   Metric metric = Metric::SSIM;
   double outlier_fraction = 0;  // the percentile: fraction of values allowed below the score
   double k1 = 0, k2 = 0;        // SSIM constants (Wang et al. 2004)
+  double chroma_k2 = 0;         // k2 of the chroma channels (tolerance of their small variances)
   int window_radius = 0;        // 1 -> 3 x 3 windows (3 samples along beta for 1D slices)
   bool pruning = false;         // abandon candidates early; false = exhaustive (for tests)
   int proxy_candidates = 0;     // candidates tried first, in order of a cheap proxy distance
@@ -142,6 +143,11 @@ class ScoreAccumulator {
   double sse_ = 0;
   bool alive_ = true;
 };
+
+// The SSIM value of every sample of one plane-channel x (absolute = ax) against y (absolute = ay),
+// in scratch (3 x plane size floats); returns the pointer to the g.size() values.
+float* ssim_values(const WindowGeometry& g, const ChannelView& x, Affine ax, const ChannelView& y, Affine ay, float c1,
+                   float c2, float* scratch);
 
 // Compares one plane-channel x (absolute = ax) with y (absolute = ay) and adds it to acc.
 // scratch must hold 3 x plane size floats.
