@@ -192,6 +192,7 @@ CompressReport compress_material(Database& db, const MeasuredSample& sample, con
                            {"resample", resample_seconds},
                            {"schedule_total", seconds_since(t_schedule)}}},
               {"dissimilarity", {{"mean", mean_dissimilarity}, {"max", worst}}},
+              {"phase3_composed", r.composed},
               {"search", {{"path", r.search == SearchPath::Pruned          ? "pruned"
                                    : r.search == SearchPath::BatchedOpenCL ? "batched-opencl"
                                                                            : "batched-reference"},

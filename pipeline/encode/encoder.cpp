@@ -1384,6 +1384,55 @@ P6Entry Encoder::encode_frozen(const float* texel_in) const {
   return frozen_entry(q, search_composite(q, 4, kNoBound, ctx));
 }
 
+bool Encoder::propose_p4(const float* texel_in, P4Proposal* out) const {
+  check_frozen();
+  const std::vector<float> texel = clamped_texel(texel_in, grid_.samples(), dyn_);
+  Ctx ctx;
+  const Query q = texel_query(texel, ctx);
+  const int n = g2_.size(), nt = grid_.n_theta_v, np = grid_.n_phi_v;
+  out->p3.assign(size_t(np), 0);
+  out->scale.assign(size_t(np), 0.0f);
+  double bright = 0;
+  for (int p = 0; p < np; ++p) {
+    Query sub = sub_query(q, p * nt, nt);
+    sub.order_planes(n);
+    const Match m = search_composite(sub, 3, kNoBound, ctx);
+    if (m.index < 0) return false;
+    out->p3[size_t(p)] = uint32_t(m.index);
+    out->scale[size_t(p)] = m.scale;
+    bright += m.scale * p3_bright_[size_t(m.index)];
+  }
+  // Stored like a grown P4 entry: normalized scales, the brightness in the texel's P6 scale.
+  const float norm = normalization(bright / np);
+  std::vector<PlaneRef> planes;
+  for (int p = 0; p < np; ++p) {
+    out->scale[size_t(p)] /= norm;
+    for (int t = 0; t < nt; ++t) {
+      const uint32_t m = books_.p3_index.at(out->p3[size_t(p)], size_t(t));
+      planes.push_back({books_.m.at(m, 0), books_.m.at(m, 1), out->scale[size_t(p)] * books_.p3_scale.at(out->p3[size_t(p)], size_t(t))});
+    }
+  }
+  double score;
+  float s = 1;
+  evaluate_composite(q, planes.data(), int(planes.size()), kNoBound, ctx, &score, &s);
+  out->entry.index = 0;
+  out->entry.scale = s;
+  out->entry.dissimilarity = score_to_dissimilarity(settings_.metric, score, q.values);
+  return true;
+}
+
+P6Entry Encoder::adopt_p4(const P4Proposal& proposal) {
+  bool added;
+  P6Entry r = proposal.entry;
+  r.index = insert_row(CodebookId::P4, p4_rows_, books_.p4_index, proposal.p3.data(), &books_.p4_scale,
+                       proposal.scale.data(), &added);
+  if (added) {
+    cache_p4(r.index);
+    count_insert(CodebookId::P4, false);
+  }
+  return r;
+}
+
 P6Entry Encoder::encode_frozen_among(const float* texel_in, const std::vector<uint32_t>& order, double floor) const {
   check_frozen();
   const std::vector<float> texel = clamped_texel(texel_in, grid_.samples(), dyn_);

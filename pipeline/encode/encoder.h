@@ -76,6 +76,13 @@ struct FrozenQuery {
 // Brightness to which new M, P3 and P4 entries are normalized: mean of (Y - 16) for LDR, of Y for HDR.
 float normalized_brightness(Dynamic dyn);
 
+// A phase-3 texel's own P4 entry before it is stored (Encoder::propose_p4).
+struct P4Proposal {
+  std::vector<uint32_t> p3;  // per phi_v group
+  std::vector<float> scale;
+  P6Entry entry;             // index unset until adopted
+};
+
 class Encoder {
  public:
   Encoder(Codebooks& books, Dynamic dyn, const Thresholds& thresholds, const SimilaritySettings& settings);
@@ -92,6 +99,14 @@ class Encoder {
   // Phase 3: the best P4 entry and its scale; no insertion. Throws InputError if P4 is empty.
   // Thread-safe (const) as long as nobody grows the code-books at the same time.
   P6Entry encode_frozen(const float* texel) const;
+
+  // Phase-3 refinement, in two steps so that the search runs in parallel and the code-books grow in
+  // texel order: a P4 entry made of the best stored P3 entry of every phi_v group (nothing below P4
+  // is added), with the texel's scale and dissimilarity; false if a group has no candidate.
+  // Thread-safe (const), as it reads only P3 and below, which phase 3 never changes.
+  bool propose_p4(const float* texel, P4Proposal* out) const;
+  // Stores the proposal's entry (or finds it stored) and returns the texel's P6 entry.
+  P6Entry adopt_p4(const P4Proposal& proposal);
 
   // The pieces of encode_frozen() for the batched search (pipeline/encode/frozen_search.h):
   // the texel as the comparison sees it, with its candidates;

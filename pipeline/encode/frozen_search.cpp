@@ -174,9 +174,11 @@ FrozenSearch::FrozenSearch(const Encoder& encoder, SearchPath path, int threads)
   const int radius = encoder.settings().window_radius;
   const WindowGeometry geometry(g.n_alpha, g.n_beta, radius);
   for (int i = 0; i < geometry.size(); ++i) inv_count_.push_back(geometry.inv_count(i));
-  for (uint32_t e = 0; e < k.p4_index.rows(); ++e) encoder.p4_planes(e, plane_p2_, plane_i2_, plane_f_);
   keep_ = int(std::floor(encoder.settings().outlier_fraction * double(3 * g.samples()) + 1e-9)) + 1;
-  if (path_ != SearchPath::BatchedOpenCL) return;
+  if (path_ != SearchPath::BatchedOpenCL) {
+    sync();
+    return;
+  }
   auto& dev = ComputeDevice::get();
   if (!dev.uses_opencl()) throw DeviceError("the batched OpenCL search needs OpenCL: " + dev.description());
   if (!kernel_fits(g, radius))
@@ -203,38 +205,52 @@ FrozenSearch::FrozenSearch(const Encoder& encoder, SearchPath path, int threads)
       }
     return out;
   };
-  std::vector<double> lum_yy, chroma_yy;
-  const std::vector<float> lum = padded(encoder.luminance_planes(), 0, lum_yy);
-  const std::vector<float> chroma = padded(encoder.chroma_planes(), 1, chroma_yy);
-  // The least-squares denominator of every P4 entry: sum over planes and scaled channels of f^2 yy.
-  const size_t planes = size_t(g.n_phi_v * g.n_theta_v);
-  std::vector<float> entry_yy(k.p4_index.rows());
-  for (size_t e = 0; e < entry_yy.size(); ++e) {
-    double d = 0;
-    for (size_t j = 0; j < planes; ++j) {
-      const size_t at = e * planes + j;
-      double yy = lum_yy[plane_p2_[at]];
-      if (search_scales(hdr, 1)) yy += chroma_yy[plane_i2_[at] * 2] + chroma_yy[plane_i2_[at] * 2 + 1];
-      d += double(plane_f_[at]) * double(plane_f_[at]) * yy;
-    }
-    entry_yy[e] = float(d);
-  }
+  const std::vector<float> lum = padded(encoder.luminance_planes(), 0, lum_yy_);
+  const std::vector<float> chroma = padded(encoder.chroma_planes(), 1, chroma_yy_);
   std::vector<float> inv(size_t(g.n_alpha) * kLanes, 0.0f);
   for (int r = 0; r < g.n_alpha; ++r)
     for (int c = 0; c < g.n_beta; ++c) inv[size_t(r) * kLanes + size_t(c + radius)] = inv_count_[size_t(r * g.n_beta + c)];
   device_ = std::make_unique<Device>();
   opencl_call("uploading the frozen code-books", [&] {
-    device_->plane_p2 = dev.upload(plane_p2_);
-    device_->plane_i2 = dev.upload(plane_i2_);
-    device_->plane_f = dev.upload(plane_f_);
-    device_->entry_yy = dev.upload(entry_yy);
     device_->lum = dev.upload(lum);
     device_->chroma = dev.upload(chroma);
     device_->inv_count = dev.upload(inv);
   });
+  sync();
 }
 
 FrozenSearch::~FrozenSearch() = default;
+
+void FrozenSearch::sync() {
+  const Codebooks& k = encoder_.codebooks();
+  if (path_ == SearchPath::Pruned || entries_ == k.p4_index.rows()) return;
+  const AngularGrid& g = k.grid;
+  const int hdr = encoder_.dynamic() == Dynamic::HDR;
+  // The planes of the entries added since, and their least-squares denominators: the sum over
+  // planes and scaled channels of f^2 yy.
+  const size_t planes = size_t(g.n_phi_v * g.n_theta_v);
+  for (uint32_t e = uint32_t(entries_); e < k.p4_index.rows(); ++e) {
+    encoder_.p4_planes(e, plane_p2_, plane_i2_, plane_f_);
+    if (lum_yy_.empty()) continue;  // the C++ reference fits its scales itself
+    double d = 0;
+    for (size_t j = 0; j < planes; ++j) {
+      const size_t at = size_t(e) * planes + j;
+      double yy = lum_yy_[plane_p2_[at]];
+      if (search_scales(hdr, 1)) yy += chroma_yy_[plane_i2_[at] * 2] + chroma_yy_[plane_i2_[at] * 2 + 1];
+      d += double(plane_f_[at]) * double(plane_f_[at]) * yy;
+    }
+    entry_yy_.push_back(float(d));
+  }
+  entries_ = k.p4_index.rows();
+  if (!device_) return;
+  auto& dev = ComputeDevice::get();
+  opencl_call("uploading the P4 entries", [&] {
+    device_->plane_p2 = dev.upload(plane_p2_);
+    device_->plane_i2 = dev.upload(plane_i2_);
+    device_->plane_f = dev.upload(plane_f_);
+    device_->entry_yy = dev.upload(entry_yy_);
+  });
+}
 
 void FrozenSearch::bracket(int bin, double* lower, double* upper) {
   *lower = bin <= 0 ? -1e300 : double(bin) / kBins - kMargin;

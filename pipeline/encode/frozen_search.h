@@ -32,7 +32,8 @@ struct SearchStats {
 
 class FrozenSearch {
  public:
-  // `encoder` must outlive the search and its code-books must not grow meanwhile (phase 3).
+  // `encoder` must outlive the search and its code-books must not grow meanwhile (phase 3), but
+  // for P4 entries taken in by sync().
   // BatchedOpenCL throws DeviceError unless OpenCL is in use and kernel_fits() the grid.
   FrozenSearch(const Encoder& encoder, SearchPath path, int threads);
   ~FrozenSearch();
@@ -46,6 +47,10 @@ class FrozenSearch {
 
   SearchPath path() const { return path_; }
   const SearchStats& stats() const { return stats_; }
+
+  // Takes in the P4 entries the encoder appended since (phase-3 compositions); the lower
+  // code-books must not have changed.
+  void sync();
 
   // Encodes n texels (3 x grid.samples() coding-space floats each, contiguous) into out[0..n).
   void encode(const float* texels, size_t n, P6Entry* out);
@@ -77,6 +82,9 @@ class FrozenSearch {
   int keep_ = 1;
   std::vector<uint32_t> plane_p2_, plane_i2_;
   std::vector<float> plane_f_, inv_count_;
+  std::vector<double> lum_yy_, chroma_yy_;  // per P2 / I2 entry and channel: sum of squares about the offset
+  std::vector<float> entry_yy_;              // per P4 entry: the least-squares denominator
+  size_t entries_ = 0;                       // P4 entries taken in
   std::unique_ptr<Device> device_;
   SearchStats stats_;
 };

@@ -8,6 +8,7 @@
 
 #include <btfvq/error.h>
 #include "pipeline/runtime/opencl_runtime.h"
+#include "pipeline/util/parallel.h"
 
 namespace btfvq {
 
@@ -21,6 +22,8 @@ ScheduleSettings ScheduleSettings::from(const ParameterDictionary& d) {
   s.tile_texels = d.integer("schedule.tile_texels", 1, 1 << 16);
   s.threads = d.integer("schedule.threads", 1, 256);
   s.search = d.string("schedule.search");
+  s.compose_threshold = d.number("schedule.compose_threshold", 0.0, 2.0);
+  s.compose_gain = d.number("schedule.compose_gain", 0.0, 2.0);
   if (s.search != "auto" && s.search != "pruned" && s.search != "batched" && s.search != "batched-reference")
     throw ConfigError(d.origin() + ": 'schedule.search' = '" + s.search +
                       "' must be \"auto\", \"pruned\", \"batched\" or \"batched-reference\"");
@@ -144,6 +147,38 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
             encoder, schedule.search_path(encoder.codebooks().grid, encoder.settings()), schedule.threads);
       std::vector<P6Entry> entries(n);
       frozen->encode(texels, n, entries.data());
+      // Proposals in parallel (they read only the frozen P3 and below), adoption in texel order: an
+      // adopted entry is seen by the texels after it, and the result depends neither on the device
+      // nor on the number of threads.
+      std::vector<size_t> todo;
+      for (size_t i = 0; i < n; ++i)
+        if (entries[i].dissimilarity > schedule.compose_threshold) todo.push_back(i);
+      std::vector<P4Proposal> proposals(todo.size());
+      std::vector<char> proposed(todo.size());
+      parallel_for(0, todo.size(), [&](size_t k) {
+        proposed[k] = encoder.propose_p4(texels + todo[k] * 3 * samples, &proposals[k]);
+      }, ParallelOptions{size_t(schedule.threads), 1});
+      const uint32_t tile_start = uint32_t(books.p4_index.rows());
+      std::vector<uint32_t> added;
+      for (size_t k = 0; k < todo.size(); ++k) {
+        P6Entry& e = entries[todo[k]];
+        if (!added.empty()) {
+          try {  // the entries adopted earlier in this tile, which the batch did not see
+            const P6Entry a = encoder.encode_frozen_among(texels + todo[k] * 3 * samples, added, 1.0 - e.dissimilarity);
+            if (a.dissimilarity < e.dissimilarity) e = a;
+          } catch (const InputError&) {  // none is closer
+          }
+          if (e.dissimilarity <= schedule.compose_threshold) continue;
+        }
+        if (!proposed[k] || !(proposals[k].entry.dissimilarity < e.dissimilarity - schedule.compose_gain)) continue;
+        const uint32_t before = uint32_t(books.p4_index.rows());
+        e = encoder.adopt_p4(proposals[k]);
+        if (books.p4_index.rows() > before) {
+          added.push_back(e.index);
+          ++result.report.composed;
+        }
+      }
+      if (books.p4_index.rows() > tile_start) frozen->sync();
       for (size_t i = 0; i < n; ++i) store(i, entries[i]);
     }
     if (progress) progress({phase, at + n - bounds[phase - 1], bounds[phase] - bounds[phase - 1], CodebookSizes::of(books)});

@@ -29,6 +29,11 @@ struct ScheduleSettings {
   // "batched" (OpenCL, or its C++ reference without OpenCL), "batched-reference" (the kernel's C++
   // reference even on OpenCL: for comparisons). All give the same entries.
   std::string search;
+  // Phase-3 refinement: a texel whose best stored P4 entry is farther than compose_threshold
+  // (dissimilarity; 2 = never) gets a new P4 entry of the best stored P3 entry per phi_v group when
+  // that is at least compose_gain closer (Encoder::compose_frozen).
+  double compose_threshold = 0;
+  double compose_gain = 0;
   SearchPath search_path(const AngularGrid& grid, const SimilaritySettings& similarity) const;
 
   // Reads the "schedule" section.
@@ -52,6 +57,7 @@ struct ScheduleReport {
   EncoderStats encoder;     // phases 1 and 2
   SearchPath search = SearchPath::Pruned;  // phase 3
   SearchStats search_stats;
+  size_t composed = 0;  // phase-3 texels given a new P4 entry (the entries: P4 after phase 3 - after phase 2)
 };
 
 struct ScheduleResult {
