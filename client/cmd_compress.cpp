@@ -9,15 +9,30 @@
 #include "client/cli.h"
 #include "client/progress_bar.h"
 #include "pipeline/encode/compress.h"
+#include "pipeline/encode/quality.h"
 #include "pipeline/io/sample_io.h"
 
 namespace btfvq::cli {
 namespace {
 
+double parse_quality(const std::string& text) {
+  size_t used = 0;
+  double q = -1;
+  try {
+    q = std::stod(text, &used);
+  } catch (const std::exception&) {
+  }
+  if (used != text.size() || !(q >= 0 && q <= 100)) throw InputError("--quality: '" + text + "' is not a number from 0 to 100");
+  return q;
+}
+
+// --quality sets every threshold by one rule; a --config file's settings win over it, key by key.
 ParameterDictionary config_of(const Args& a) {
   const auto file = a.get("config");
-  if (!file) return ParameterDictionary::embedded_default("pipeline");
-  return pipeline_config(ParameterDictionary::load_file(*file).json(), *file);
+  const nlohmann::json overrides = file ? ParameterDictionary::load_file(*file).json() : nlohmann::json();
+  const std::string origin = file ? *file : std::string("--quality");
+  if (auto q = a.get("quality")) return pipeline_config(with_quality(parse_quality(*q), overrides), origin);
+  return pipeline_config(overrides, origin);
 }
 
 std::vector<MaterialInput> inputs_of(const Args& a) {
@@ -93,9 +108,14 @@ int run_compress(const Args& a) {
   return 0;
 }
 
-CommandRegistrar reg({"compress", "compress IN... --db OUT.btfdb [--config F] [--name N] [--report R.json]",
+CommandRegistrar reg({"compress", "compress IN... --db OUT.btfdb [--quality Q] [--config F] [--name N] [--report R.json]",
                       "compress measured samples (zip or directory) into a database; an existing database gains them",
-                      {"db", "config", "name", "report"}, {}, run_compress});
+                      {{"db", "OUT.btfdb", "the database to write (an existing one gains the materials)"},
+                       {"quality", "Q", "0..100: every threshold by one rule (default 50, the shipped settings)"},
+                       {"config", "F", "a configs/pipeline.json fragment; its settings win over --quality"},
+                       {"name", "N", "the material's name (one input only; default: from the file name)"},
+                       {"report", "R.json", "also write the compress report (counters, seconds) as JSON"}},
+                      {}, run_compress});
 
 }  // namespace
 }  // namespace btfvq::cli

@@ -4,6 +4,7 @@
 #include <regex>
 #include <set>
 
+#include "pipeline/encode/quality.h"
 #include "pipeline/io/sample_io.h"
 #include <btfvq/error.h>
 #include "server/errors.h"
@@ -74,10 +75,16 @@ const json& require_materials(const json& request) {
   return materials;
 }
 
+// The job's settings: its "pipeline" overrides, on top of what its "quality" stands for if given
+// (the same rule as `btfvq compress --quality`).
 json pipeline_overrides(const json& request) {
-  if (!request.contains("pipeline")) return json::object();
-  const json& pipeline = request["pipeline"];
+  json pipeline = request.value("pipeline", json::object());
   if (!pipeline.is_object()) throw invalid("pipeline", "must be an object");
+  if (request.contains("quality")) {
+    const json& q = request["quality"];
+    if (!q.is_number() || !(q.get<double>() >= 0 && q.get<double>() <= 100)) throw invalid("quality", "must be a number from 0 to 100");
+    pipeline = with_quality(q.get<double>(), pipeline);
+  }
   validate_pipeline_overrides(pipeline);
   return pipeline;
 }
@@ -97,7 +104,7 @@ JobRequests::JobRequests(Store& store, DataDir data, fs::path input_root, uint64
 
 json JobRequests::validate(const json& request, const std::string& id) const {
   require_object(request, "request body");
-  only_keys(request, "", {"database", "materials", "pipeline"});
+  only_keys(request, "", {"database", "materials", "pipeline", "quality"});
   const std::string database = require_string(request, "database", "");
   if (!valid_name(database))
     throw invalid("database", "'" + database + "' is not a valid name (1-64 of [A-Za-z0-9._-], starting alphanumeric)");
@@ -117,7 +124,9 @@ json JobRequests::validate(const json& request, const std::string& id) const {
       throw invalid(where + ".name", "database '" + database + "' already has a material '" + name + "'");
     normalized.push_back(std::move(m));
   }
-  return {{"id", id}, {"database", database}, {"materials", normalized}, {"pipeline", pipeline_overrides(request)}};
+  json out = {{"id", id}, {"database", database}, {"materials", normalized}, {"pipeline", pipeline_overrides(request)}};
+  if (request.contains("quality")) out["quality"] = request["quality"];
+  return out;
 }
 
 json JobRequests::material(const json& m, const std::string& where) const {

@@ -399,6 +399,8 @@ TEST_CASE("bad job requests get a 4xx naming the field and change no state") {
        "pipeline.grid.n_beta"},
       {R"({"database": "d", "materials": [{"source": {"path": "in/a.zip"}}], "pipeline": {"thresholds": {"ssim": {"p4": -0.1}}}})",
        400, "thresholds.ssim.p4"},
+      {R"({"database": "d", "materials": [{"source": {"path": "in/a.zip"}}], "quality": -1})", 400, "quality"},
+      {R"({"database": "d", "materials": [{"source": {"path": "in/a.zip"}}], "quality": null})", 400, "quality"},
       {R"({"database": "d", "materials": [{"source": {"path": "in/junk.zip"}}]})", 400, "materials[0].source.path"},
       {R"({"database": "d", "materials": [{"source": {"path": "in/evil.zip"}}]})", 400, "'..'"},
       {R"({"database": "d", "materials": [{"source": {"path": "in/bomb.zip"}}]})", 400, "expands to"},

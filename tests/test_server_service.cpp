@@ -1,5 +1,6 @@
 // The service layer in-process: store durability, the per-database queue, cancellation, startup
 // recovery, and validation that rejects bad jobs without changing anything.
+#include "pipeline/encode/quality.h"
 #include "server_fixture.h"
 
 #include "server/errors.h"
@@ -244,6 +245,10 @@ TEST_CASE("job validation names the field and changes nothing") {
       {{{"database", "d"}, {"materials", json::array({{{"source", {{"path", "ok/sample.zip"}}}, {"nmae", "x"}}})}}, "nmae"},
       {{{"database", "d"}, {"materials", json::array({{{"source", {{"path", "ok/sample.zip"}}}}})}, {"pipeline", 3}},
        "pipeline"},
+      {{{"database", "d"}, {"materials", json::array({{{"source", {{"path", "ok/sample.zip"}}}}})}, {"quality", 101}},
+       "quality"},
+      {{{"database", "d"}, {"materials", json::array({{{"source", {{"path", "ok/sample.zip"}}}}})}, {"quality", "high"}},
+       "quality"},
   };
   for (const auto& c : input_errors) {
     CAPTURE(c.body.dump());
@@ -269,6 +274,18 @@ TEST_CASE("job validation names the field and changes nothing") {
   CHECK(ok["state"] == "queued");
   CHECK(ok["materials"][0] == "sample");
   CHECK(service.jobs().size() == 1);
+
+  // "quality" resolves into the stored settings by the rule of `btfvq compress --quality`; the
+  // request's own "pipeline" settings win over it.
+  json tuned = with_source({{"path", "ok/sample.zip"}});
+  tuned["quality"] = 80;
+  tuned["pipeline"] = {{"thresholds", {{"ssim", {{"p1", 0.5}}}}}};
+  const json q = service.submit(tuned);
+  const json expected = quality_settings(80);
+  CHECK(q["request"]["quality"] == 80);
+  CHECK(q["request"]["pipeline"]["thresholds"]["ssim"]["p4"] == expected["thresholds"]["ssim"]["p4"]);
+  CHECK(q["request"]["pipeline"]["schedule"]["compose_gain"] == expected["schedule"]["compose_gain"]);
+  CHECK(q["request"]["pipeline"]["thresholds"]["ssim"]["p1"] == 0.5);
 }
 
 TEST_CASE("without an input root, server-side paths are refused") {

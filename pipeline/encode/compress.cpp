@@ -192,7 +192,7 @@ CompressReport compress_material(Database& db, const MeasuredSample& sample, con
                            {"resample", resample_seconds},
                            {"schedule_total", seconds_since(t_schedule)}}},
               {"dissimilarity", {{"mean", mean_dissimilarity}, {"max", worst}}},
-              {"phase3_composed", r.composed},
+              {"phase3_composition", {{"texels", r.composed}, {"propose_seconds", r.propose_seconds}, {"adopt_seconds", r.adopt_seconds}}},
               {"search", {{"path", r.search == SearchPath::Pruned          ? "pruned"
                                    : r.search == SearchPath::BatchedOpenCL ? "batched-opencl"
                                                                            : "batched-reference"},

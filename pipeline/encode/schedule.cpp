@@ -153,11 +153,14 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
       std::vector<size_t> todo;
       for (size_t i = 0; i < n; ++i)
         if (entries[i].dissimilarity > schedule.compose_threshold) todo.push_back(i);
+      const auto t_propose = std::chrono::steady_clock::now();
       std::vector<P4Proposal> proposals(todo.size());
       std::vector<char> proposed(todo.size());
       parallel_for(0, todo.size(), [&](size_t k) {
         proposed[k] = encoder.propose_p4(texels + todo[k] * 3 * samples, &proposals[k]);
       }, ParallelOptions{size_t(schedule.threads), 1});
+      const auto t_adopt = std::chrono::steady_clock::now();
+      result.report.propose_seconds += std::chrono::duration<double>(t_adopt - t_propose).count();
       const uint32_t tile_start = uint32_t(books.p4_index.rows());
       std::vector<uint32_t> added;
       for (size_t k = 0; k < todo.size(); ++k) {
@@ -178,6 +181,7 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
           ++result.report.composed;
         }
       }
+      result.report.adopt_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t_adopt).count();
       if (books.p4_index.rows() > tile_start) frozen->sync();
       for (size_t i = 0; i < n; ++i) store(i, entries[i]);
     }

@@ -58,6 +58,7 @@ struct ScheduleReport {
   SearchPath search = SearchPath::Pruned;  // phase 3
   SearchStats search_stats;
   size_t composed = 0;  // phase-3 texels given a new P4 entry (the entries: P4 after phase 3 - after phase 2)
+  double propose_seconds = 0, adopt_seconds = 0;  // of phase 3's composition (parallel, in texel order)
 };
 
 struct ScheduleResult {

@@ -1,0 +1,20 @@
+#pragma once
+// One knob for the rate-distortion trade-off: a quality Q in [0, 100] that sets every threshold and
+// the phase-3 composition by one documented rule (docs/encoder.md "Quality"), so that a user asks
+// for more or less quality instead of tuning eight thresholds. Higher Q: every threshold lower or
+// equal, so more entries and a closer reconstruction. The shipped defaults are Q = kDefaultQuality.
+#include <nlohmann/json.hpp>
+
+namespace btfvq {
+
+inline constexpr double kDefaultQuality = 50;
+
+// The pipeline settings (a configs/pipeline.json fragment: thresholds.ssim, schedule.compose_*)
+// that quality q stands for. InputError unless 0 <= q <= 100.
+nlohmann::json quality_settings(double q);
+
+// quality_settings(q) with `overrides` merged on top: the expert settings of a config file or a
+// job's "pipeline" field win over the knob, key by key.
+nlohmann::json with_quality(double q, const nlohmann::json& overrides);
+
+}  // namespace btfvq

@@ -1,0 +1,54 @@
+#include <doctest/doctest.h>
+
+#include <cmath>
+#include <string>
+
+#include <btfvq/error.h>
+#include "pipeline/encode/compress.h"
+#include "pipeline/encode/encoder.h"
+#include "pipeline/encode/quality.h"
+#include "pipeline/encode/schedule.h"
+#include "pipeline/util/config.h"
+
+using namespace btfvq;
+
+namespace {
+const char* kKeys[] = {"p4", "p3", "m", "p2", "p1", "i2", "i1", "c"};
+
+ParameterDictionary at(double q) { return pipeline_config(quality_settings(q), "quality"); }
+}  // namespace
+
+TEST_CASE("the default quality is the shipped settings") {
+  const ParameterDictionary shipped = ParameterDictionary::embedded_default("pipeline");
+  CHECK(at(kDefaultQuality).json() == shipped.json());
+}
+
+TEST_CASE("higher quality: every threshold lower or equal, the top ones strictly, and each setting valid") {
+  for (double q = 0; q < 100; q += 2.5) {
+    CAPTURE(q);
+    const ParameterDictionary lo = at(q), hi = at(q + 2.5);  // pipeline_config validates both
+    for (const char* k : kKeys) {
+      CAPTURE(k);
+      const double a = lo.json()["thresholds"]["ssim"][k], b = hi.json()["thresholds"]["ssim"][k];
+      CHECK(b <= a);
+    }
+    CHECK(double(hi.json()["thresholds"]["ssim"]["p4"]) < double(lo.json()["thresholds"]["ssim"]["p4"]));
+    CHECK(double(hi.json()["schedule"]["compose_threshold"]) <= double(lo.json()["schedule"]["compose_threshold"]));
+    CHECK(double(hi.json()["schedule"]["compose_gain"]) <= double(lo.json()["schedule"]["compose_gain"]));
+  }
+  // The ends of the scale: three times looser and three times tighter than the default.
+  const double p4 = Thresholds::defaults().p4;
+  CHECK(Thresholds::from(at(0)).p4 == doctest::Approx(3 * p4));
+  CHECK(Thresholds::from(at(100)).p4 == doctest::Approx(p4 / 3));
+}
+
+TEST_CASE("quality out of range is an InputError; expert settings win over the knob") {
+  for (double q : {-1.0, 100.5, 1e300})
+    CHECK_THROWS_AS(quality_settings(q), InputError);
+  CHECK_THROWS_AS(quality_settings(std::nan("")), InputError);
+  const nlohmann::json merged = with_quality(90, {{"thresholds", {{"ssim", {{"p2", 0.3}}}}}});
+  CHECK(merged["thresholds"]["ssim"]["p2"] == 0.3);
+  CHECK(merged["thresholds"]["ssim"]["p4"] == quality_settings(90)["thresholds"]["ssim"]["p4"]);
+  // A misspelled expert setting is still refused by the one check.
+  CHECK_THROWS_AS(pipeline_config(with_quality(90, {{"thresholds", {{"ssim", {{"p5", 0.3}}}}}}), "x"), ConfigError);
+}
