@@ -22,12 +22,15 @@ if [ -n "$(cd "$root" && git status --porcelain --untracked-files=no -- . ':!BEN
 # A bench that keeps results of its own (bench_rate_distortion) records which run measured them.
 export BTFVQ_BENCH_COMMIT="$commit"
 export BTFVQ_BENCH_COMMAND="make bench${extra:+ BENCH_ARGS=\"${extra[*]}\"}${BENCH_ONLY:+ (BENCH_ONLY=$BENCH_ONLY)}"
-for b in "$bin"/bench_*; do
+# The programs, and the scripts that compare whole command lines (bench/bench_*.sh: they get the
+# folder of the programs as --bin).
+for b in "$bin"/bench_* "$root"/bench/bench_*.sh; do
   [ -x "$b" ] || continue
-  name=$(basename "$b")
+  name=$(basename "$b" .sh)
   if [ -n "${BENCH_ONLY:-}" ] && [[ ",${BENCH_ONLY// /,}," != *",$name,"* ]]; then continue; fi
   echo "== $name" >&2
-  "$b" --json "$work/$name.json" --scratch "$work/$name.scratch" --testdata "$root/tests/data" \
+  script=(); [[ "$b" == *.sh ]] && script=(--bin "$bin")
+  "$b" "${script[@]}" --json "$work/$name.json" --scratch "$work/$name.scratch" --testdata "$root/tests/data" \
        --figures "$root/bench/results" "${extra[@]}" >&2
   python3 - "$work/$name.json" "$sections/$name.json" "$commit" "make bench${extra:+ BENCH_ARGS=\"${extra[*]}\"}" <<'PY'
 import datetime, json, sys
