@@ -1,5 +1,6 @@
 // `btfvq compress`: measured samples into a (new or existing) database, with a progress bar per
 // stage. Flags become options for one compress_database() call; this file only draws its progress.
+#include <cmath>
 #include <fstream>
 #include <iostream>
 #include <memory>
@@ -10,20 +11,23 @@
 #include "client/progress_bar.h"
 #include "pipeline/encode/compress.h"
 #include "pipeline/encode/quality.h"
+#include "pipeline/encode/target.h"
 #include "pipeline/io/sample_io.h"
 
 namespace btfvq::cli {
 namespace {
 
-double parse_quality(const std::string& text) {
+// A number in [lo, hi] for `flag`, or an InputError naming it.
+double parse_number(const std::string& text, const std::string& flag, double lo, double hi) {
   size_t used = 0;
-  double q = -1;
+  double v = std::nan("");
   try {
-    q = std::stod(text, &used);
+    v = std::stod(text, &used);
   } catch (const std::exception&) {
   }
-  if (used != text.size() || !(q >= 0 && q <= 100)) throw InputError("--quality: '" + text + "' is not a number from 0 to 100");
-  return q;
+  if (used != text.size() || !(v >= lo && v <= hi))
+    throw InputError(flag + ": '" + text + "' is not a number from " + std::to_string(lo) + " to " + std::to_string(hi));
+  return v;
 }
 
 // --quality sets every threshold by one rule; a --config file's settings win over it, key by key.
@@ -31,7 +35,7 @@ ParameterDictionary config_of(const Args& a) {
   const auto file = a.get("config");
   const nlohmann::json overrides = file ? ParameterDictionary::load_file(*file).json() : nlohmann::json();
   const std::string origin = file ? *file : std::string("--quality");
-  if (auto q = a.get("quality")) return pipeline_config(with_quality(parse_quality(*q), overrides), origin);
+  if (auto q = a.get("quality")) return pipeline_config(with_quality(parse_number(*q, "--quality", 0, 100), overrides), origin);
   return pipeline_config(overrides, origin);
 }
 
@@ -77,10 +81,17 @@ class StageBars {
 void print_summary(const std::string& out, const DatabaseSummary& s) {
   std::cout << "wrote " << out << ": " << s.materials << " material(s), " << s.bytes << " bytes, ratio 1:" << s.ratio
             << "\n";
-  for (const auto& r : s.added)
+  for (const auto& r : s.added) {
+    if (r.json.contains("target")) {
+      const auto& t = r.json["target"];
+      std::cout << "  " << r.material << ": target MSSIM " << t["mssim"].get<double>() << ", achieved "
+                << t["achieved"].get<double>() << (t["reached"].get<bool>() ? "" : " (not reached)") << " at quality "
+                << t["quality"].get<double>() << " after " << t["attempts"].size() << " compression(s)\n";
+    }
     for (const auto& p : r.json["phases"])
       std::cout << "  " << r.material << " phase " << p["phase"] << ": " << p["texels"] << " texels, "
                 << p["seconds"].get<double>() << " s, code-books " << p["codebook_sizes"].dump() << "\n";
+  }
 }
 
 void write_report(const std::string& file, const std::string& out, const DatabaseSummary& s) {
@@ -97,8 +108,15 @@ int run_compress(const Args& a) {
   if (a.positional.empty()) throw InputError("usage: btfvq compress IN... --db OUT.btfdb [--config F]");
   const std::string out = a.require("db");
   if (a.has("name") && a.positional.size() != 1) throw InputError("--name needs exactly one input");
+  if (a.has("quality") && a.has("target-mssim")) throw InputError("--quality and --target-mssim exclude each other");
   CompressOptions options;
   options.config = config_of(a);  // a misspelled setting fails before any work
+  if (auto t = a.get("target-mssim")) {
+    QualityTarget target;
+    target.mssim = *t == "default" ? kDefaultTargetMssim : parse_number(*t, "--target-mssim", 0.01, 0.999);
+    if (auto file = a.get("config")) target.overrides = ParameterDictionary::load_file(*file).json();
+    options.target = target;
+  }
   StageBars bars;
   options.progress = [&](const CompressProgress& p) { bars(p); };
   const DatabaseSummary summary = compress_database(out, inputs_of(a), out, options);
@@ -108,10 +126,11 @@ int run_compress(const Args& a) {
   return 0;
 }
 
-CommandRegistrar reg({"compress", "compress IN... --db OUT.btfdb [--quality Q] [--config F] [--name N] [--report R.json]",
+CommandRegistrar reg({"compress", "compress IN... --db OUT.btfdb [--quality Q | --target-mssim X] [--config F] [--name N] [--report R.json]",
                       "compress measured samples (zip or directory) into a database; an existing database gains them",
                       {{"db", "OUT.btfdb", "the database to write (an existing one gains the materials)"},
                        {"quality", "Q", "0..100: every threshold by one rule (default 50, the shipped settings)"},
+                       {"target-mssim", "X", "search the quality whose MSSIM (Y, whole sample) reaches X, or 'default' (0.90)"},
                        {"config", "F", "a configs/pipeline.json fragment; its settings win over --quality"},
                        {"name", "N", "the material's name (one input only; default: from the file name)"},
                        {"report", "R.json", "also write the compress report (counters, seconds) as JSON"}},

@@ -99,16 +99,18 @@ int run_submit(const Args& args) {
   }
   json request = {{"database", database}, {"materials", materials}};
   if (!pipeline.empty()) request["pipeline"] = pipeline;
-  if (auto q = args.get("quality")) {  // the server checks the range, as for any client
-    size_t used = 0;
-    double value = -1;
-    try {
-      value = std::stod(*q, &used);
-    } catch (const std::exception&) {
+  // The server checks the ranges, as for any client.
+  for (const auto& [flag, field] : {std::pair{"quality", "quality"}, {"target-mssim", "target_mssim"}})
+    if (auto text = args.get(flag)) {
+      size_t used = 0;
+      double value = -1;
+      try {
+        value = std::stod(*text, &used);
+      } catch (const std::exception&) {
+      }
+      if (used != text->size()) throw InputError(std::string("--") + flag + ": '" + *text + "' is not a number");
+      request[field] = value;
     }
-    if (used != q->size()) throw InputError("--quality: '" + *q + "' is not a number");
-    request["quality"] = value;
-  }
   const json job = client.post_json("/v1/jobs", request);
   std::cout << job.at("id").get<std::string>() << "\n";
   return 0;
@@ -116,7 +118,7 @@ int run_submit(const Args& args) {
 
 CommandRegistrar reg({"submit",
                       "submit --server URL --db NAME (--synthetic PRESET[:SIZE] | --upload PATH | --path SERVER_PATH)... "
-                      "[--name NAME]... [--seed S] [--quality Q] [--config overrides.json]",
+                      "[--name NAME]... [--seed S] [--quality Q | --target-mssim X] [--config overrides.json]",
                       "submit materials to a btfvq server as one job; prints the job id",
                       remote_options({{"db", "NAME", "the database on the server that gains the materials"},
                                       {"synthetic", "PRESET[:SIZE]", "a synthetic material rendered by the server (size 64)"},
@@ -125,6 +127,7 @@ CommandRegistrar reg({"submit",
                                       {"name", "NAME", "a material's name, once per material in the order --synthetic, --path, --upload"},
                                       {"seed", "S", "the seed of the synthetic materials (default 1)"},
                                       {"quality", "Q", "0..100: every threshold by one rule (the job field \"quality\")"},
+                                      {"target-mssim", "X", "the MSSIM the job's materials must reach (the job field \"target_mssim\")"},
                                       {"config", "FILE", "pipeline settings (JSON) over configs/pipeline.json"}}),
                       {},
                       run_submit});

@@ -31,6 +31,7 @@ struct JobSpec {
   std::string database;
   std::vector<MaterialSpec> materials;
   nlohmann::json pipeline = nlohmann::json::object();  // overrides of configs/pipeline.json
+  double target_mssim = 0;  // > 0: search the quality that reaches it (pipeline/encode/target.h)
 };
 
 // What a running job reports; the service derives elapsed time and ETA from it.

@@ -80,6 +80,13 @@ const json& require_materials(const json& request) {
 json pipeline_overrides(const json& request) {
   json pipeline = request.value("pipeline", json::object());
   if (!pipeline.is_object()) throw invalid("pipeline", "must be an object");
+  if (request.contains("quality") && request.contains("target_mssim"))
+    throw invalid("quality", "and \"target_mssim\" exclude each other");
+  if (request.contains("target_mssim")) {
+    const json& t = request["target_mssim"];
+    if (!t.is_number() || !(t.get<double>() >= 0.01 && t.get<double>() <= 0.999))
+      throw invalid("target_mssim", "must be a number from 0.01 to 0.999");
+  }
   if (request.contains("quality")) {
     const json& q = request["quality"];
     if (!q.is_number() || !(q.get<double>() >= 0 && q.get<double>() <= 100)) throw invalid("quality", "must be a number from 0 to 100");
@@ -104,7 +111,7 @@ JobRequests::JobRequests(Store& store, DataDir data, fs::path input_root, uint64
 
 json JobRequests::validate(const json& request, const std::string& id) const {
   require_object(request, "request body");
-  only_keys(request, "", {"database", "materials", "pipeline", "quality"});
+  only_keys(request, "", {"database", "materials", "pipeline", "quality", "target_mssim"});
   const std::string database = require_string(request, "database", "");
   if (!valid_name(database))
     throw invalid("database", "'" + database + "' is not a valid name (1-64 of [A-Za-z0-9._-], starting alphanumeric)");
@@ -126,6 +133,7 @@ json JobRequests::validate(const json& request, const std::string& id) const {
   }
   json out = {{"id", id}, {"database", database}, {"materials", normalized}, {"pipeline", pipeline_overrides(request)}};
   if (request.contains("quality")) out["quality"] = request["quality"];
+  if (request.contains("target_mssim")) out["target_mssim"] = request["target_mssim"];
   return out;
 }
 
@@ -208,6 +216,7 @@ JobSpec JobRequests::spec(const JobRecord& job) const {
   spec.id = job.id;
   spec.database = job.database;
   spec.pipeline = job.spec.value("pipeline", json::object());
+  spec.target_mssim = job.spec.value("target_mssim", 0.0);
   for (const auto& m : job.spec["materials"]) {
     MaterialSpec ms;
     ms.name = m["name"];

@@ -34,6 +34,7 @@ Executor make_pipeline_executor() {
     for (const auto& m : spec.materials) inputs.push_back(input_of(m, ctx.max_expanded_bytes));
     CompressOptions options;
     options.config = pipeline_config(spec.pipeline, "job " + spec.id + " pipeline overrides");
+    if (spec.target_mssim > 0) options.target = QualityTarget{spec.target_mssim, spec.pipeline};
     options.cancelled = ctx.cancelled;
     options.progress = [&](const CompressProgress& p) {
       ctx.progress({p.stage, p.phase, p.fraction, p.texels_done, p.texels_total, p.sizes, p.material});

@@ -249,6 +249,10 @@ TEST_CASE("job validation names the field and changes nothing") {
        "quality"},
       {{{"database", "d"}, {"materials", json::array({{{"source", {{"path", "ok/sample.zip"}}}}})}, {"quality", "high"}},
        "quality"},
+      {{{"database", "d"}, {"materials", json::array({{{"source", {{"path", "ok/sample.zip"}}}}})}, {"target_mssim", 1.5}},
+       "target_mssim"},
+      {{{"database", "d"}, {"materials", json::array({{{"source", {{"path", "ok/sample.zip"}}}}})}, {"quality", 60}, {"target_mssim", 0.9}},
+       "exclude"},
   };
   for (const auto& c : input_errors) {
     CAPTURE(c.body.dump());
@@ -286,6 +290,9 @@ TEST_CASE("job validation names the field and changes nothing") {
   CHECK(q["request"]["pipeline"]["thresholds"]["ssim"]["p4"] == expected["thresholds"]["ssim"]["p4"]);
   CHECK(q["request"]["pipeline"]["schedule"]["compose_gain"] == expected["schedule"]["compose_gain"]);
   CHECK(q["request"]["pipeline"]["thresholds"]["ssim"]["p1"] == 0.5);
+  json aimed = with_source({{"path", "ok/sample.zip"}});
+  aimed["target_mssim"] = 0.85;
+  CHECK(service.submit(aimed)["request"]["target_mssim"] == 0.85);
 }
 
 TEST_CASE("without an input root, server-side paths are refused") {

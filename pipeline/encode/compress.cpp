@@ -9,6 +9,7 @@
 #include <set>
 
 #include <btfvq/error.h>
+#include "pipeline/encode/target.h"
 #include "pipeline/format/database.h"
 #include "pipeline/util/atomic_file.h"
 #include "pipeline/runtime/opencl_runtime.h"
@@ -262,7 +263,8 @@ DatabaseSummary compress_database(const std::string& previous, const std::vector
     if (cancelled()) throw CancelledError();
     CompressOptions o = options;
     o.progress = [&](const CompressProgress& p) { forward(p, kLoadShare + (1 - kLoadShare) * p.fraction); };
-    summary.added.push_back(compress_material(db, sample, in.name, o));
+    summary.added.push_back(options.target ? compress_to_target(db, sample, in.name, *options.target, o)
+                                           : compress_material(db, sample, in.name, o));
   }
   if (options.progress) options.progress({"write", 0, 0, 0, 1.0, CodebookSizes::of(db.codebooks), "", 0, inputs.size()});
   // Round the new rows to what the file stores, so the in-memory model and the file decode alike.

@@ -10,6 +10,7 @@
 #include <nlohmann/json.hpp>
 
 #include <functional>
+#include <optional>
 #include <string>
 
 #include "pipeline/btf.h"
@@ -30,8 +31,17 @@ struct CompressProgress {
   size_t material_index = 0, materials = 0;
 };
 
+// Target mode (pipeline/encode/target.h): the quality knob searched until the MSSIM is reached.
+struct QualityTarget {
+  double mssim = 0;          // in (0, 1)
+  nlohmann::json overrides;  // the user's settings, over the knob (with_quality)
+  int max_attempts = 4;      // whole compressions at most
+  double tolerance = 0.005;  // stop once the target is reached by at most this much
+};
+
 struct CompressOptions {
   ParameterDictionary config = ParameterDictionary::embedded_default("pipeline");
+  std::optional<QualityTarget> target;  // set: `config` is ignored for the settings the knob sets
   std::function<void(const CompressProgress&)> progress;  // may be empty; called from worker threads
   std::function<bool()> cancelled;                         // polled between tiles; true -> CancelledError
 };
