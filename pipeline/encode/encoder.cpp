@@ -964,19 +964,25 @@ Encoder::Match Encoder::encode_p4(const float* texel_in, Ctx& ctx) {
         sub.order_planes(n);
         return encode_p3(sub, ctx, cap);
       },
-      [&](uint32_t p3, float factor, std::vector<PlaneRef>& out) {
-        for (int t = 0; t < nt; ++t) {
-          const uint32_t m = books_.p3_index.at(p3, size_t(t));
-          out.push_back({books_.m.at(m, 0), books_.m.at(m, 1), factor * books_.p3_scale.at(p3, size_t(t))});
-        }
-      });
+      [&](uint32_t p3, float factor, std::vector<PlaneRef>& out) { p3_planes(p3, factor, out); });
+  return {int64_t(store_p4(c.index.data(), c.scale.data())), c.score, c.norm};
+}
+
+void Encoder::p3_planes(uint32_t p3, float factor, std::vector<PlaneRef>& out) const {
+  for (int t = 0; t < grid_.n_theta_v; ++t) {
+    const uint32_t m = books_.p3_index.at(p3, size_t(t));
+    out.push_back({books_.m.at(m, 0), books_.m.at(m, 1), factor * books_.p3_scale.at(p3, size_t(t))});
+  }
+}
+
+uint32_t Encoder::store_p4(const uint32_t* p3, const float* scale) {
   bool added;
-  const uint32_t e = insert_row(CodebookId::P4, p4_rows_, books_.p4_index, c.index.data(), &books_.p4_scale, c.scale.data(), &added);
+  const uint32_t e = insert_row(CodebookId::P4, p4_rows_, books_.p4_index, p3, &books_.p4_scale, scale, &added);
   if (added) {
     cache_p4(e);
     count_insert(CodebookId::P4, false);
   }
-  return {int64_t(e), c.score, c.norm};
+  return e;
 }
 
 Encoder::Match Encoder::encode_p3(const Query& q, Ctx& ctx, double cap) {
@@ -1407,10 +1413,7 @@ bool Encoder::propose_p4(const float* texel_in, P4Proposal* out) const {
   std::vector<PlaneRef> planes;
   for (int p = 0; p < np; ++p) {
     out->scale[size_t(p)] /= norm;
-    for (int t = 0; t < nt; ++t) {
-      const uint32_t m = books_.p3_index.at(out->p3[size_t(p)], size_t(t));
-      planes.push_back({books_.m.at(m, 0), books_.m.at(m, 1), out->scale[size_t(p)] * books_.p3_scale.at(out->p3[size_t(p)], size_t(t))});
-    }
+    p3_planes(out->p3[size_t(p)], out->scale[size_t(p)], planes);
   }
   double score;
   float s = 1;
@@ -1422,14 +1425,8 @@ bool Encoder::propose_p4(const float* texel_in, P4Proposal* out) const {
 }
 
 P6Entry Encoder::adopt_p4(const P4Proposal& proposal) {
-  bool added;
   P6Entry r = proposal.entry;
-  r.index = insert_row(CodebookId::P4, p4_rows_, books_.p4_index, proposal.p3.data(), &books_.p4_scale,
-                       proposal.scale.data(), &added);
-  if (added) {
-    cache_p4(r.index);
-    count_insert(CodebookId::P4, false);
-  }
+  r.index = store_p4(proposal.p3.data(), proposal.scale.data());
   return r;
 }
 

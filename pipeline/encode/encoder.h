@@ -148,6 +148,10 @@ class Encoder {
   void cache_m(uint32_t e);
   void cache_p3(uint32_t e);
   void cache_p4(uint32_t e);
+  // The planes of P3 entry p3 times factor, appended to out (what a P4 entry's group decodes to).
+  void p3_planes(uint32_t p3, float factor, std::vector<PlaneRef>& out) const;
+  // A P4 row by content: the stored one if it exists, else appended (cached, counted).
+  uint32_t store_p4(const uint32_t* p3, const float* scale);
 
   double bound_for(double threshold, size_t values) const;
   float normalization(double bright) const;
