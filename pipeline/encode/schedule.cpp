@@ -162,22 +162,32 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
       const auto t_adopt = std::chrono::steady_clock::now();
       result.report.propose_seconds += std::chrono::duration<double>(t_adopt - t_propose).count();
       const uint32_t tile_start = uint32_t(books.p4_index.rows());
-      std::vector<uint32_t> added;
+      std::vector<std::pair<uint32_t, size_t>> added;  // (entry, the proposal it was)
       for (size_t k = 0; k < todo.size(); ++k) {
+        if (!proposed[k]) continue;
         P6Entry& e = entries[todo[k]];
-        if (!added.empty()) {
-          try {  // the entries adopted earlier in this tile, which the batch did not see
-            const P6Entry a = encoder.encode_frozen_among(texels + todo[k] * 3 * samples, added, 1.0 - e.dissimilarity);
+        // The entries adopted earlier in this tile, which the batch did not see: those made of the
+        // same P3 entries in at least half of the groups (a texel close to an adopted entry picks
+        // mostly its P3 entries too); scoring every one would cost adopted^2 per tile.
+        std::vector<uint32_t> near;
+        for (const auto& [entry, from] : added) {
+          size_t same = 0;
+          for (size_t p = 0; p < proposals[k].p3.size(); ++p) same += proposals[from].p3[p] == proposals[k].p3[p];
+          if (2 * same >= proposals[k].p3.size()) near.push_back(entry);
+        }
+        if (!near.empty()) {
+          try {
+            const P6Entry a = encoder.encode_frozen_among(texels + todo[k] * 3 * samples, near, 1.0 - e.dissimilarity);
             if (a.dissimilarity < e.dissimilarity) e = a;
           } catch (const InputError&) {  // none is closer
           }
           if (e.dissimilarity <= schedule.compose_threshold) continue;
         }
-        if (!proposed[k] || !(proposals[k].entry.dissimilarity < e.dissimilarity - schedule.compose_gain)) continue;
+        if (!(proposals[k].entry.dissimilarity < e.dissimilarity - schedule.compose_gain)) continue;
         const uint32_t before = uint32_t(books.p4_index.rows());
         e = encoder.adopt_p4(proposals[k]);
         if (books.p4_index.rows() > before) {
-          added.push_back(e.index);
+          added.push_back({e.index, k});
           ++result.report.composed;
         }
       }
