@@ -91,8 +91,9 @@ by = {(r["sample"], r["build"]): r for r in rows}
 names = list(dict.fromkeys(r["sample"] for r in rows))
 books = ["P1", "C", "I1", "I2", "P2", "M", "P3", "P4"]
 md = ["Samples as users have them (UBO2003 JPEG, quality 95) through `btfvq compress` at default settings, "
-      f"scored by `btfvq eval` (MSSIM of Y over all images); the baseline is commit {base} built in a "
-      "worktree, both measured in this run. Ratio gain = new ratio / baseline ratio.", "",
+      f"scored by `btfvq eval` (MSSIM of Y over all images); the baseline is commit {base} (built in a "
+      "git worktree, or the binary given by BTFVQ_ECONOMY_OLD_BIN), both measured in this run. "
+      "Ratio gain = new ratio / baseline ratio.", "",
       f"| sample | {base} bytes | ratio | MSSIM | new bytes | ratio | MSSIM | ratio gain | MSSIM change | wall s {base} / new |",
       "|---|---|---|---|---|---|---|---|---|---|"]
 figures = {}
