@@ -236,19 +236,32 @@ void unit_shape(const float* row, int n, float* out) {
 
 template <class A, class B>
 uint32_t Encoder::insert_row(CodebookId id, ContentIndex& index, Table<A>& ta, const A* a, Table<B>* tb, const B* b,
-                             bool* added) {
+                             bool exact) {
   const uint64_t h = row_hash(a, ta.cols() * sizeof(A), b, tb ? tb->cols() * sizeof(B) : 0);
   if (const auto it = index.ids.find(h); it != index.ids.end())
     for (uint32_t e : it->second)
       if (std::equal(a, a + ta.cols(), ta.row(e)) && (!tb || std::equal(b, b + tb->cols(), tb->row(e)))) {
         ++stats_.reused[id];
-        *added = false;
         return e;
       }
   const uint32_t e = ta.append(a);
   if (tb) tb->append(b);
-  *added = true;
+  cache(id, e);
+  count_insert(id, exact);
   return e;
+}
+
+void Encoder::cache(CodebookId id, uint32_t e) {
+  switch (id) {
+    case CodebookId::P1: return cache_p1(e);
+    case CodebookId::C: return index_c(e);
+    case CodebookId::I1: return cache_i1(e);
+    case CodebookId::I2: return cache_i2(e);
+    case CodebookId::P2: return cache_p2(e);
+    case CodebookId::M: return cache_m(e);
+    case CodebookId::P3: return cache_p3(e);
+    case CodebookId::P4: return cache_p4(e);
+  }
 }
 
 void Encoder::count_insert(CodebookId id, bool exact) {
@@ -976,13 +989,7 @@ void Encoder::p3_planes(uint32_t p3, float factor, std::vector<PlaneRef>& out) c
 }
 
 uint32_t Encoder::store_p4(const uint32_t* p3, const float* scale) {
-  bool added;
-  const uint32_t e = insert_row(CodebookId::P4, p4_rows_, books_.p4_index, p3, &books_.p4_scale, scale, &added);
-  if (added) {
-    cache_p4(e);
-    count_insert(CodebookId::P4, false);
-  }
-  return e;
+  return insert_row(CodebookId::P4, p4_rows_, books_.p4_index, p3, &books_.p4_scale, scale, false);
 }
 
 Encoder::Match Encoder::encode_p3(const Query& q, Ctx& ctx, double cap) {
@@ -996,12 +1003,7 @@ Encoder::Match Encoder::encode_p3(const Query& q, Ctx& ctx, double cap) {
       [&](uint32_t m, float factor, std::vector<PlaneRef>& out) {
         out.push_back({books_.m.at(m, 0), books_.m.at(m, 1), factor});
       });
-  bool added;
-  const uint32_t e = insert_row(CodebookId::P3, p3_rows_, books_.p3_index, c.index.data(), &books_.p3_scale, c.scale.data(), &added);
-  if (added) {
-    cache_p3(e);
-    count_insert(CodebookId::P3, false);
-  }
+  const uint32_t e = insert_row(CodebookId::P3, p3_rows_, books_.p3_index, c.index.data(), &books_.p3_scale, c.scale.data(), false);
   return {int64_t(e), c.score, c.norm};
 }
 
@@ -1200,12 +1202,7 @@ uint32_t Encoder::encode_p2(const Query& q, Ctx& ctx, double cap) {
     repair_parts(g2_, false, &x, 0, 1, q.unit, recon.data(), exact, bound, ctx, reuse,
                  [&](int a) { place(a, encode_p1(x.v + a * nb, q.unit, ctx, true)); });
   }
-  bool added;
-  const uint32_t e = insert_row(CodebookId::P2, p2_rows_, books_.p2_index, idx.data(), &books_.p2_scale, sc.data(), &added);
-  if (added) {
-    cache_p2(e);
-    count_insert(CodebookId::P2, false);
-  }
+  const uint32_t e = insert_row(CodebookId::P2, p2_rows_, books_.p2_index, idx.data(), &books_.p2_scale, sc.data(), false);
   return e;
 }
 
@@ -1245,12 +1242,7 @@ uint32_t Encoder::encode_i2(const Query& q, Ctx& ctx, double cap) {
     };
     repair_parts(g2_, false, x, 1, 2, q.unit, recon.data(), exact, bound, ctx, reuse, [&](int a) { encode_row(a, true); });
   }
-  bool added;
-  const uint32_t e = insert_row<uint32_t, uint32_t>(CodebookId::I2, i2_rows_, books_.i2, idx.data(), nullptr, nullptr, &added);
-  if (added) {
-    cache_i2(e);
-    count_insert(CodebookId::I2, false);
-  }
+  const uint32_t e = insert_row<uint32_t, uint32_t>(CodebookId::I2, i2_rows_, books_.i2, idx.data(), nullptr, nullptr, false);
   return e;
 }
 
@@ -1264,12 +1256,7 @@ Encoder::Match Encoder::encode_p1(const float* row, float unit, Ctx& ctx, bool e
   for (int b = 0; b < nb; ++b) sum += row[b];
   std::vector<float> density(static_cast<size_t>(nb));
   for (int b = 0; b < nb; ++b) density[size_t(b)] = sum > 0 ? float(row[b] / sum) : 1.0f / float(nb);
-  bool added;
-  const uint32_t e = insert_row<float, float>(CodebookId::P1, p1_rows_, books_.p1, density.data(), nullptr, nullptr, &added);
-  if (added) {
-    cache_p1(e);
-    count_insert(CodebookId::P1, exact);
-  }
+  const uint32_t e = insert_row<float, float>(CodebookId::P1, p1_rows_, books_.p1, density.data(), nullptr, nullptr, exact);
   return {int64_t(e), 1.0, float(std::max(0.0, sum))};
 }
 
@@ -1297,12 +1284,7 @@ uint32_t Encoder::encode_i1(const float* row, float unit, Ctx& ctx, bool exact) 
     auto no_reuse = [](int, double, const auto&) { return false; };
     repair_parts(g1_, true, x, 1, 2, unit, recon.data(), exact_c, bound, ctx, no_reuse, [&](int b) { place(b, true); });
   }
-  bool added;
-  const uint32_t e = insert_row<uint32_t, uint32_t>(CodebookId::I1, i1_rows_, books_.i1, idx.data(), nullptr, nullptr, &added);
-  if (added) {
-    cache_i1(e);
-    count_insert(CodebookId::I1, exact);
-  }
+  const uint32_t e = insert_row<uint32_t, uint32_t>(CodebookId::I1, i1_rows_, books_.i1, idx.data(), nullptr, nullptr, exact);
   return e;
 }
 
@@ -1340,12 +1322,7 @@ uint32_t Encoder::encode_c(float a, float b, float unit, bool exact) {
   }
   if (best >= 0 && best_d <= limit) return uint32_t(best);
   const float v[2] = {a, b};
-  bool added;
-  const uint32_t e = insert_row<float, float>(CodebookId::C, c_rows_, books_.c, v, nullptr, nullptr, &added);
-  if (added) {
-    index_c(e);
-    count_insert(CodebookId::C, exact);
-  }
+  const uint32_t e = insert_row<float, float>(CodebookId::C, c_rows_, books_.c, v, nullptr, nullptr, exact);
   return e;
 }
 

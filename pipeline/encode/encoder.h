@@ -210,9 +210,12 @@ class Encoder {
   };
   enum Cause { kMiss = 0, kRetry = 1, kExact = 2 };
   Cause cause_ = kMiss;  // of the insertions below the attempt being encoded
+  // A row by content: the stored one if it exists, else appended, cached and counted (by cause_,
+  // or as exact).
   template <class A, class B>
   uint32_t insert_row(CodebookId id, ContentIndex& index, Table<A>& ta, const A* a, Table<B>* tb, const B* b,
-                      bool* added);
+                      bool exact);
+  void cache(CodebookId id, uint32_t e);  // the search structures of a new row of `id`
   void count_insert(CodebookId id, bool exact);
 
   Codebooks& books_;
