@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <sstream>
 
 #include <btfvq/error.h>
 
@@ -20,6 +21,21 @@ std::string material_name_of(const std::string& input_path) {
   std::string name = p.filename().string();
   if (name.size() > 4 && name.substr(name.size() - 4) == ".zip") name.resize(name.size() - 4);
   return name;
+}
+
+double parse_number(const std::string& text, const std::string& flag, double lo, double hi) {
+  size_t used = 0;
+  double v = std::nan("");
+  try {
+    v = std::stod(text, &used);
+  } catch (const std::exception&) {
+  }
+  if (used != text.size() || !(v >= lo && v <= hi)) {
+    std::ostringstream range;
+    range << lo << " to " << hi;
+    throw InputError(flag + ": '" + text + "' is not a number from " + range.str());
+  }
+  return v;
 }
 
 Direction parse_direction(const std::string& text, const std::string& flag) {

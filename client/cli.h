@@ -30,6 +30,9 @@ struct CommandRegistrar {
 // "THETA,PHI" in degrees, e.g. "45,120"; theta in [0, 90]. Throws InputError naming the flag.
 Direction parse_direction(const std::string& text, const std::string& flag);
 
+// A number in [lo, hi] for `flag` (the whole text), or an InputError naming the flag.
+double parse_number(const std::string& text, const std::string& flag, double lo, double hi);
+
 // The material name an input path stands for: "path/UBO_IMPALLA256.zip" -> "UBO_IMPALLA256".
 std::string material_name_of(const std::string& input_path);
 

@@ -17,18 +17,6 @@
 namespace btfvq::cli {
 namespace {
 
-// A number in [lo, hi] for `flag`, or an InputError naming it.
-double parse_number(const std::string& text, const std::string& flag, double lo, double hi) {
-  size_t used = 0;
-  double v = std::nan("");
-  try {
-    v = std::stod(text, &used);
-  } catch (const std::exception&) {
-  }
-  if (used != text.size() || !(v >= lo && v <= hi))
-    throw InputError(flag + ": '" + text + "' is not a number from " + std::to_string(lo) + " to " + std::to_string(hi));
-  return v;
-}
 
 // --quality sets every threshold by one rule; a --config file's settings win over it, key by key.
 ParameterDictionary config_of(const Args& a) {

@@ -99,18 +99,8 @@ int run_submit(const Args& args) {
   }
   json request = {{"database", database}, {"materials", materials}};
   if (!pipeline.empty()) request["pipeline"] = pipeline;
-  // The server checks the ranges, as for any client.
-  for (const auto& [flag, field] : {std::pair{"quality", "quality"}, {"target-mssim", "target_mssim"}})
-    if (auto text = args.get(flag)) {
-      size_t used = 0;
-      double value = -1;
-      try {
-        value = std::stod(*text, &used);
-      } catch (const std::exception&) {
-      }
-      if (used != text->size()) throw InputError(std::string("--") + flag + ": '" + *text + "' is not a number");
-      request[field] = value;
-    }
+  if (auto q = args.get("quality")) request["quality"] = parse_number(*q, "--quality", 0, 100);
+  if (auto t = args.get("target-mssim")) request["target_mssim"] = parse_number(*t, "--target-mssim", 0.01, 0.999);
   const json job = client.post_json("/v1/jobs", request);
   std::cout << job.at("id").get<std::string>() << "\n";
   return 0;

@@ -18,9 +18,15 @@ namespace {
 struct Attempt {
   double quality = 0, mssim = 0;
   uint64_t bytes = 0;
-  Database db;
-  CompressReport report;
 };
+
+// Whether `a` is better kept than `b`: reaching the target beats not; among those that reach it
+// fewer bytes, among those that do not a higher MSSIM.
+bool better(const Attempt& a, const Attempt& b, double target) {
+  const bool ra = a.mssim >= target, rb = b.mssim >= target;
+  if (ra != rb) return ra;
+  return ra ? a.bytes < b.bytes : a.mssim > b.mssim;
+}
 
 // The next quality to try: between the closest attempts on either side of the target (secant), or
 // a step past the one side known so far, the slope taken from two attempts on one side when there are.
@@ -53,11 +59,13 @@ CompressReport compress_to_target(Database& db, const MeasuredSample& sample, co
                                   const QualityTarget& target, const CompressOptions& options) {
   if (!(target.mssim > 0 && target.mssim < 1)) throw InputError("target MSSIM must lie in (0, 1), got " + std::to_string(target.mssim));
   std::vector<Attempt> tried;
+  // Only the kept attempt's database and report are held: a copy of the code-books each.
+  Attempt best;
+  Database best_db;
+  CompressReport best_report;
   double q = kDefaultQuality;
   for (int k = 0; k < std::max(1, target.max_attempts); ++k) {
-    Attempt a;
-    a.quality = q;
-    a.db = db;
+    Database trial = db;
     CompressOptions o = options;
     o.config = pipeline_config(with_quality(q, target.overrides), "target quality " + std::to_string(q));
     const double share = 1.0 / std::max(1, target.max_attempts);
@@ -66,36 +74,30 @@ CompressReport compress_to_target(Database& db, const MeasuredSample& sample, co
         p.fraction = std::min(1.0, (k + p.fraction) * share);
         options.progress(p);
       };
-    a.report = compress_material(a.db, sample, name, o);
-    quantize_new_rows(a.db);  // score what the file will hold
-    a.mssim = evaluate(sample, reconstruct_sample(a.db, name, sample)).mssim_y;
-    a.bytes = serialize_database(a.db).size();
-    tried.push_back(std::move(a));
-    const Attempt& last = tried.back();
-    if (last.mssim >= target.mssim && last.mssim - target.mssim <= target.tolerance) break;
-    if (last.mssim < target.mssim && q >= 100) break;  // nothing higher to try
-    if (last.mssim >= target.mssim && q <= 0) break;
+    CompressReport report = compress_material(trial, sample, name, o);
+    quantize_new_rows(trial);  // score what the file will hold
+    const Attempt a{q, evaluate(sample, reconstruct_sample(trial, name, sample)).mssim_y, serialize_database(trial).size()};
+    tried.push_back(a);
+    if (tried.size() == 1 || better(a, best, target.mssim)) {
+      best = a;
+      best_db = std::move(trial);
+      best_report = std::move(report);
+    }
+    if (a.mssim >= target.mssim && a.mssim - target.mssim <= target.tolerance) break;
+    if (a.mssim < target.mssim && q >= 100) break;  // nothing higher to try
+    if (a.mssim >= target.mssim && q <= 0) break;
     const double next = next_quality(tried, target.mssim);
     bool seen = false;
     for (const Attempt& t : tried) seen = seen || std::abs(t.quality - next) < 0.5;
     if (seen) break;
     q = next;
   }
-  // Fewest bytes among those that reach the target, else the highest MSSIM.
-  const Attempt* best = nullptr;
-  for (const Attempt& a : tried)
-    if (a.mssim >= target.mssim && (!best || a.bytes < best->bytes)) best = &a;
-  const bool reached = best != nullptr;
-  if (!best)
-    for (const Attempt& a : tried)
-      if (!best || a.mssim > best->mssim) best = &a;
   nlohmann::json attempts = nlohmann::json::array();
   for (const Attempt& a : tried) attempts.push_back({{"quality", a.quality}, {"mssim", a.mssim}, {"bytes", a.bytes}});
-  CompressReport report = best->report;
-  report.json["target"] = {{"mssim", target.mssim}, {"achieved", best->mssim}, {"quality", best->quality},
-                           {"reached", reached}, {"attempts", attempts}};
-  db = best->db;
-  return report;
+  best_report.json["target"] = {{"mssim", target.mssim}, {"achieved", best.mssim}, {"quality", best.quality},
+                                {"reached", best.mssim >= target.mssim}, {"attempts", attempts}};
+  db = std::move(best_db);
+  return best_report;
 }
 
 }  // namespace btfvq
