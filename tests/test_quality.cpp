@@ -82,9 +82,13 @@ TEST_CASE("--quality is monotone end to end: tile, leather and fabric at 64 x 64
       const uint64_t bytes = serialize_database(db).size();
       const double mssim = evaluate(sample, reconstruct_sample(db, "m", sample)).mssim_y;
       // Tile sits at its ceiling from Q 20 on (one P4 entry, MSSIM 0.997): there the steps move
-      // MSSIM by +-1e-4 and the file by a byte of range coding, which is all the slack allowed.
+      // MSSIM by +-1e-4 and the file by one P1 row more or less (3,240-3,285 bytes: greedy growth
+      // in texel order can match a row at a tighter threshold that a looser one had inserted
+      // differently). That, 1 % of the bytes where MSSIM moved by less than 1e-3, is all the
+      // slack allowed; everywhere else bytes grow.
       CHECK(mssim >= last_mssim - 5e-4);
-      CHECK(double(bytes) >= double(last_bytes) * 0.999);
+      const bool at_ceiling = std::abs(mssim - last_mssim) < 1e-3;
+      CHECK(double(bytes) >= double(last_bytes) * (at_ceiling ? 0.99 : 1.0));
       last_mssim = mssim;
       last_bytes = bytes;
     }

@@ -230,6 +230,62 @@ TEST_CASE("the unmeasured region near the horizon is finite and luminance is not
   CHECK(non_negative);
 }
 
+TEST_CASE("nodes no measured direction reaches repeat their nearest seen node") {
+  // The Bonn views stop at theta 75 (a node), so the decoder never reads the theta_v = 90 plane; its
+  // lights stop at theta 75 as well, so the alpha = +-90 rows (the light horizon) are read only by a
+  // few grazing lights, and the corners of the (alpha, beta) plane by none.
+  const MeasuredSample s = random_sample(Dynamic::LDR, 2);
+  const ResampleOperator op(s, AngularGrid{}, default_settings());
+  const AngularGrid& g = op.grid();
+  const size_t n = g.samples();
+  std::vector<float> out(op.values_per_texel() * 2);
+  op.apply_reference(s, 0, 2, out.data());
+  const int last = g.n_theta_v - 1, horizon = g.n_alpha - 1, centre = g.n_beta / 2;
+  size_t copies = 0, differing = 0;
+  for (int p = 0; p < g.n_phi_v; ++p)
+    for (int a = 0; a < g.n_alpha; ++a)
+      for (int b = 0; b < g.n_beta; ++b) {
+        const size_t node = g.index(p, last, a, b);
+        const size_t src = op.node_source()[node];
+        CHECK(src / g.slice2() == g.index(p, last - 1, 0, 0) / g.slice2());  // the same phi_v at theta 75
+        for (size_t t = 0; t < 2; ++t)
+          for (int c = 0; c < 3; ++c)
+            differing += out[t * 3 * n + size_t(c) * n + node] != out[t * 3 * n + size_t(c) * n + src];
+      }
+  // Only nodes beyond the measured range (theta 75 for views and lights) copy; inside it, also
+  // where no measured direction falls in a node's cells, every node is its own.
+  size_t inside_copied = 0;
+  for (int p = 0; p < g.n_phi_v; ++p)
+    for (int t = 0; t < g.n_theta_v; ++t)
+      for (int a = 0; a < g.n_alpha; ++a)
+        for (int b = 0; b < g.n_beta; ++b) {
+          const size_t node = g.index(p, t, a, b);
+          if (op.node_source()[node] == node) continue;
+          ++copies;
+          const bool horizon_light = from_onion({g.alpha_node(a), g.beta_node(b)}, 0.0).theta > 75.0 + 1e-6;
+          inside_copied += g.theta_v_node(t) <= 75.0 && !horizon_light;
+        }
+  CHECK(differing == 0);
+  CHECK(inside_copied == 0);
+  CHECK(op.node_source()[g.index(3, 2, 0, centre)] == g.index(3, 2, 1, centre));  // alpha -90 <- -72
+  CHECK(op.node_source()[g.index(3, 2, horizon, centre)] == g.index(3, 2, horizon - 1, centre));
+  CHECK(op.node_source()[g.index(3, 2, horizon / 2, centre)] == g.index(3, 2, horizon / 2, centre));  // seen
+  CHECK(copies >= size_t(g.n_phi_v) * g.slice2());  // at least the theta_v = 90 plane
+  CHECK(copies < n / 2);
+  // The OpenCL path runs the same rows.
+  if (ComputeDevice::get().uses_opencl()) {
+    std::vector<float> cl(out.size());
+    op.apply_opencl(s, 0, 2, cl.data());
+    for (size_t node = 0; node < n; ++node)
+      if (op.node_source()[node] != node) REQUIRE(cl[node] == doctest::Approx(cl[op.node_source()[node]]));
+  }
+  // Off: every node is its own.
+  ResampleSettings off = default_settings();
+  off.unseen_influence = -1;
+  const ResampleOperator plain(s, AngularGrid{}, off);
+  for (size_t node = 0; node < n; ++node) REQUIRE(plain.node_source()[node] == node);
+}
+
 TEST_CASE("a sample with other directions than the operator's geometry is rejected") {
   const MeasuredSample bonn = make_bonn_sample(4, 4, Dynamic::LDR);
   const ResampleOperator op(bonn, AngularGrid{}, default_settings());

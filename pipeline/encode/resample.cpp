@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <map>
 #include <string>
 
@@ -18,6 +19,7 @@ ResampleSettings ResampleSettings::from(const ParameterDictionary& config) {
   s.kernel_width_deg = config.number("resample.kernel_width_deg", 0.5, 180.0);
   s.polynomial_degree = config.integer("resample.polynomial_degree", 0, 1);
   s.tile_texels = config.integer("resample.tile_texels", 1, 65536);
+  s.unseen_influence = config.number("resample.unseen_influence", -1.0, 1.0);
   return s;
 }
 
@@ -146,6 +148,65 @@ std::vector<SparseEntry> local_rbf(const Direction& query, const std::vector<Dir
 
 void pad(std::vector<SparseEntry>& row, int width) { row.resize(size_t(width), SparseEntry{0, 0.0f}); }
 
+void add_cell(std::vector<double>& w, const Cell& c, double weight, size_t stride, size_t offset) {
+  w[offset + size_t(c.i0) * stride] += weight * (1 - c.w);
+  w[offset + size_t(c.i1) * stride] += weight * c.w;
+}
+
+// Share of the decoder's interpolation weight (docs/btfbase-format.md: linear in phi_v, theta_v,
+// alpha; beta's cubic Hermite counted by its linear cell) that each view node and each (alpha,
+// beta) node receives over the measured pairs, relative to the average node (1 = average).
+struct Influence {
+  std::vector<double> view, light;
+};
+
+Influence influence(const AngularGrid& g, const std::vector<Direction>& views,
+                    const std::vector<std::vector<Direction>>& lights) {
+  Influence in;
+  in.view.assign(size_t(g.n_phi_v) * size_t(g.n_theta_v), 0.0);
+  in.light.assign(g.slice2(), 0.0);
+  for (size_t v = 0; v < views.size(); ++v) {
+    const Cell t = g.theta_v_cell(views[v].theta);
+    const bool pole = views[v].theta < kPoleTheta;
+    for (int p = 0; p < g.n_phi_v; ++p) {
+      const Cell ph = pole ? Cell{p, p, 0.0} : g.phi_v_cell(views[v].phi);
+      const double share = pole ? 1.0 / g.n_phi_v : 1.0;
+      for (const auto& [node, w] : {std::pair{ph.i0, 1 - ph.w}, std::pair{ph.i1, ph.w}})
+        add_cell(in.view, t, share * w, 1, size_t(node) * size_t(g.n_theta_v));
+      if (!pole) break;
+    }
+    for (const Direction& l : lights[v]) {
+      const OnionAngles o = to_onion(l, views[v].phi);
+      const Cell a = g.alpha_cell(o.alpha), b = g.beta_cell(o.beta);
+      add_cell(in.light, b, 1 - a.w, 1, size_t(a.i0) * size_t(g.n_beta));
+      add_cell(in.light, b, a.w, 1, size_t(a.i1) * size_t(g.n_beta));
+    }
+  }
+  for (auto* w : {&in.view, &in.light}) {
+    double sum = 0;
+    for (double x : *w) sum += x;
+    for (double& x : *w) x = sum > 0 ? x * double(w->size()) / sum : 0;
+  }
+  return in;
+}
+
+// For every node, the nearest node (by the angle between `direction`s) that is not `unseen`; itself
+// when it is not. All nodes stay their own when every one is unseen.
+std::vector<uint32_t> nearest_seen(const std::vector<bool>& unseen, const std::function<Vec3(size_t)>& direction) {
+  std::vector<uint32_t> source(unseen.size());
+  for (size_t n = 0; n < unseen.size(); ++n) {
+    source[n] = uint32_t(n);
+    if (!unseen[n]) continue;
+    double best = -2;
+    for (size_t m = 0; m < unseen.size(); ++m)
+      if (!unseen[m]) {
+        const double c = dot(direction(n), direction(m));
+        if (c > best + 1e-12) best = c, source[n] = uint32_t(m);
+      }
+  }
+  return source;
+}
+
 }  // namespace
 
 ResampleOperator::ResampleOperator(const MeasuredSample& geometry, const AngularGrid& grid,
@@ -199,6 +260,50 @@ ResampleOperator::ResampleOperator(const MeasuredSample& geometry, const Angular
       for (auto& e : row) e.index = uint32_t(first_slot[e.index] + (views_[e.index].theta < kPoleTheta ? size_t(p) : 0));
       view_rows_.insert(view_rows_.end(), row.begin(), row.end());
     }
+  fill_unseen();
+}
+
+// Nodes beyond the measured range (the theta_v = 90 plane when the views stop at 75; the light
+// horizon) hold the interpolant's extrapolation: invented values, yet the encoder compares them like
+// any other and pays entries for them. Those the decoder hardly reads at a measured direction repeat
+// their nearest seen node instead, by copying that node's operator rows, so the device and reference
+// paths stay one operator. Nodes inside the measured range are never copied, even where no measured
+// direction falls in their cells (the view nodes between the six views at theta 15): there the
+// interpolant is what a renderer's query between measured views reads.
+void ResampleOperator::fill_unseen() {
+  const size_t n_ab = grid_.slice2(), view_nodes = grid_.samples() / n_ab;
+  node_source_.resize(grid_.samples());
+  for (size_t i = 0; i < node_source_.size(); ++i) node_source_[i] = uint32_t(i);
+  if (settings_.unseen_influence < 0) return;
+  const Influence in = influence(grid_, views_, lights_);
+  const double floor = std::max(settings_.unseen_influence, 1e-9), margin = 1e-6;
+  double view_theta = 0, light_theta = 0;
+  for (size_t v = 0; v < views_.size(); ++v) {
+    view_theta = std::max(view_theta, views_[v].theta);
+    for (const Direction& l : lights_[v]) light_theta = std::max(light_theta, l.theta);
+  }
+  auto view_direction = [&](size_t n) {
+    return Direction{grid_.theta_v_node(int(n % size_t(grid_.n_theta_v))), grid_.phi_v_node(int(n / size_t(grid_.n_theta_v)))};
+  };
+  auto light_direction = [&](size_t n) {
+    return from_onion({grid_.alpha_node(int(n / size_t(grid_.n_beta))), grid_.beta_node(int(n % size_t(grid_.n_beta)))}, 0.0);
+  };
+  std::vector<bool> view_unseen(view_nodes), light_unseen(n_ab);
+  for (size_t n = 0; n < view_nodes; ++n) view_unseen[n] = in.view[n] <= floor && view_direction(n).theta > view_theta + margin;
+  for (size_t n = 0; n < n_ab; ++n) light_unseen[n] = in.light[n] <= floor && light_direction(n).theta > light_theta + margin;
+  const auto view_src = nearest_seen(view_unseen, [&](size_t n) { return to_vector(view_direction(n)); });
+  const auto light_src = nearest_seen(light_unseen, [&](size_t n) { return to_vector(light_direction(n)); });
+  const size_t lw = size_t(light_width_), vw = size_t(view_width_);
+  for (size_t slot = 0; slot < slot_count_; ++slot)
+    for (size_t ab = 0; ab < n_ab; ++ab)
+      if (light_src[ab] != ab)
+        std::copy_n(light_rows_.begin() + long((slot * n_ab + light_src[ab]) * lw), lw,
+                    light_rows_.begin() + long((slot * n_ab + ab) * lw));
+  for (size_t vn = 0; vn < view_nodes; ++vn)
+    if (view_src[vn] != vn)
+      std::copy_n(view_rows_.begin() + long(view_src[vn] * vw), vw, view_rows_.begin() + long(vn * vw));
+  for (size_t vn = 0; vn < view_nodes; ++vn)
+    for (size_t ab = 0; ab < n_ab; ++ab) node_source_[vn * n_ab + ab] = uint32_t(view_src[vn] * n_ab + light_src[ab]);
 }
 
 ResampleOperator::~ResampleOperator() = default;

@@ -34,6 +34,10 @@ struct ResampleSettings {
   double kernel_width_deg = 0;  // Gaussian exp(-(d / width)^2), d great-circle (chart) distance
   int polynomial_degree = 0;    // 0: constant precision; 1: linear precision in the tangent plane
   int tile_texels = 0;          // texels per device batch (small: the batch's data stays in cache)
+  // A node beyond the measured range (view or light theta above every measured one) whose share of
+  // the decoder's interpolation weight over the measured pairs is at most this times the average
+  // node's is "unseen" and copies its nearest seen node (negative: off).
+  double unseen_influence = 0;
 
   // Reads the "resample" section (keys as above) of a pipeline configuration.
   static ResampleSettings from(const ParameterDictionary& config);
@@ -69,9 +73,13 @@ class ResampleOperator {
   // merged: what apply() computes for each channel before the luminance clamp.
   std::vector<SparseEntry> node_weights(size_t node) const;
 
+  // Which nodes copy another (AngularGrid::index of the source per node, itself when seen).
+  const std::vector<uint32_t>& node_source() const { return node_source_; }
+
  private:
   struct DeviceBuffers;
   void check_input(const MeasuredSample& sample, size_t first_texel, size_t count) const;
+  void fill_unseen();
   DeviceBuffers device_buffers() const;  // uploads the operator once per OpenCL context
 
   AngularGrid grid_;
@@ -86,6 +94,7 @@ class ResampleOperator {
   // View step: n_phi_v * n_theta_v rows of view_width_ slot entries.
   int view_width_ = 0;
   std::vector<SparseEntry> view_rows_;
+  std::vector<uint32_t> node_source_;
 
   mutable std::mutex device_mutex_;
   mutable std::unique_ptr<DeviceBuffers> device_;
