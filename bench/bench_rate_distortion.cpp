@@ -1,7 +1,9 @@
 // Rate-distortion of btfvq against the competitors users would pick instead (bench/baselines): per
-// preset, btfvq at several threshold scales and every baseline at several sizes, all on the same
-// sample in one run, evaluated with the same metrics; one table and one plot (ratio on a log axis
-// against MSSIM) per preset, and btfvq's ratio over the best PCA baseline's at matched MSSIM.
+// preset, btfvq at several qualities (`--quality`, docs/encoder.md "Quality") and every baseline at
+// several sizes, all on the same sample in one run, evaluated with the same metrics; one table and
+// one plot (ratio on a log axis against MSSIM) per preset, and btfvq's ratio over the best PCA
+// baseline's at matched MSSIM. Samples are what users have: each is written as a UBO2003 JPEG zip
+// (quality 95) and read back, and every method compresses and is scored against that.
 //
 // Each sample's results are kept in bench/results/rd/<sample>.json with the run that measured them
 // (commit, date, arguments), and the section is assembled from every kept sample: the 256 x 256
@@ -29,6 +31,8 @@
 #include "pipeline/util/atomic_file.h"
 #include "pipeline/io/btfbase.h"
 #include "pipeline/encode/compress.h"
+#include "pipeline/encode/quality.h"
+#include "pipeline/io/sample_io.h"
 #include "pipeline/format/database.h"
 #include "pipeline/metrics/metrics.h"
 #include "pipeline/decode/reconstruct.h"
@@ -44,7 +48,7 @@ const std::vector<Option> kRdOptions{
     {"size", "N", "their size (128; --quick 32)"},
     {"big", "p:N,..", "extra presets at their own size, or none (leather:256; --quick none)"},
     {"proposte", "N", "the real proposte sample cropped to N x N from its corner (256 = whole; --quick 16; 0 = skip)"},
-    {"scales", "a,b,..", "factors on configs/pipeline.json's thresholds.ssim (0.7,1,1.5)"},
+    {"qualities", "a,b,..", "btfvq --quality values (20,35,50,65,80; --quick 30,50,70)"},
     {"phase2", "a,b,..", "more btfvq points at the default thresholds with schedule.phase2_fraction = a, b (none; "
                          "more growing texels raise quality where thresholds do not)"},
     {"pca", "a,b,..", "per-view PCA components (1,2,5; --quick 1,2)"},
@@ -57,7 +61,7 @@ struct RdArgs {
   int size = 128;
   std::vector<std::pair<std::string, int>> big{{"leather", 256}};
   int proposte = 256;
-  std::vector<double> scales{0.7, 1.0, 1.5};
+  std::vector<double> qualities{20, 35, 50, 65, 80};
   std::vector<double> phase2;
   std::vector<int> pca{1, 2, 5}, grouped{1, 2, 8}, lab{1, 4, 16, 64}, vq{32, 128};
 };
@@ -118,12 +122,13 @@ RdArgs quick_defaults() {
   RdArgs r;
   r.size = 32;
   r.big.clear();
-  r.proposte = 16;  // real data grows large code-books: even a 32 x 32 corner takes minutes per threshold scale
+  r.proposte = 16;  // real data grows large code-books: even a 32 x 32 corner takes minutes per quality
   r.presets = {"tile", "leather", "wood"};
   r.pca = {1, 2};
   r.grouped = {1, 2};
   r.lab = {1, 2, 4, 8};
   r.vq = {4};
+  r.qualities = {30, 50, 70};
   return r;
 }
 
@@ -138,7 +143,7 @@ RdArgs rd_args(const btfvq::Args& given, bool quick) {
     const auto more = doubles(v);
     r.phase2.insert(r.phase2.end(), more.begin(), more.end());
   }
-  if (auto v = given.get("scales")) r.scales = doubles(*v);
+  if (auto v = given.get("qualities")) r.qualities = doubles(*v);
   if (auto v = given.get("pca")) r.pca = ints(*v);
   if (auto v = given.get("grouped")) r.grouped = ints(*v);
   if (auto v = given.get("lab")) r.lab = ints(*v);
@@ -153,23 +158,18 @@ struct Point {
   EvaluationReport e;
 };
 
-// The default pipeline config with every SSIM threshold x scale and, if phase2 >= 0, that
-// schedule.phase2_fraction.
-ParameterDictionary btfvq_config(double scale, double phase2) {
-  ParameterDictionary config = ParameterDictionary::embedded_default("pipeline");
-  nlohmann::json t = config.json()["thresholds"]["ssim"];
-  for (auto& [key, v] : t.items()) v = v.get<double>() * scale;
-  config.merge(ParameterDictionary(nlohmann::json{{"thresholds", {{"ssim", t}}}}, "threshold scale"));
-  if (phase2 >= 0)
-    config.merge(ParameterDictionary(nlohmann::json{{"schedule", {{"phase2_fraction", phase2}}}}, "phase-2 fraction"));
-  return config;
+// The pipeline config of quality q and, if phase2 >= 0, that schedule.phase2_fraction.
+ParameterDictionary btfvq_config(double quality, double phase2) {
+  nlohmann::json overrides = nlohmann::json::object();
+  if (phase2 >= 0) overrides["schedule"] = {{"phase2_fraction", phase2}};
+  return pipeline_config(with_quality(quality, overrides), "rate-distortion bench");
 }
 
-Point run_btfvq(const MeasuredSample& sample, double scale, double phase2, const std::filesystem::path& scratch) {
+Point run_btfvq(const MeasuredSample& sample, double quality, double phase2, const std::filesystem::path& scratch) {
   bench::Stopwatch sw;
   Database db;
   CompressOptions options;
-  options.config = btfvq_config(scale, phase2);
+  options.config = btfvq_config(quality, phase2);
   compress_material(db, sample, "m", options);
   quantize_new_rows(db);
   const auto path = scratch / "rd.btfdb";
@@ -178,8 +178,8 @@ Point run_btfvq(const MeasuredSample& sample, double scale, double phase2, const
   p.seconds = sw.seconds();
   p.method = "btfvq";
   char s[64];
-  if (phase2 >= 0) std::snprintf(s, sizeof s, "thresholds x %.2g, phase2_fraction %.2g", scale, phase2);
-  else std::snprintf(s, sizeof s, "thresholds x %.2g", scale);
+  if (phase2 >= 0) std::snprintf(s, sizeof s, "Q %.0f, phase2_fraction %.2g", quality, phase2);
+  else std::snprintf(s, sizeof s, "Q %.0f", quality);
   p.setting = s;
   p.bytes = std::filesystem::file_size(path);
   p.e = evaluate(sample, reconstruct_sample(read_database(path.string()), "m", sample));
@@ -337,7 +337,7 @@ std::string why_not_2x(const Matched& m, double ceiling, double lo, double hi) {
   std::snprintf(num, sizeof num, "%.3f-%.3f", lo, hi);
   if (hi - lo < 0.05)
     w << "Its settings move its MSSIM only within " << num
-      << " while its size changes a lot (a nearly vertical curve): tighter thresholds buy bytes, not quality, so "
+      << " while its size changes a lot (a nearly vertical curve): higher qualities buy bytes, not quality, so "
          "btfvq does not reach the high-MSSIM part of the PCA curves, where PCA is least efficient.";
   else
     w << "Its settings span MSSIM " << num << "; the PCA curve rises faster with bytes in that range.";
@@ -397,8 +397,9 @@ void write_rd_section(const bench::Args& args, bool quick) {
     return sample_order(a["key"].get<std::string>()) < sample_order(b["key"].get<std::string>());
   });
   std::ostringstream md;
-  md << "Each sample is compressed by btfvq (`compress_material` with configs/pipeline.json's `thresholds.ssim` "
-        "scaled by each factor; ratio = raw bytes / .btfdb file bytes) and by four baselines built in bench/baselines "
+  md << "Each sample is written as a UBO2003 zip of JPEG images (quality 95), as real archives are, read back, "
+        "and compressed by btfvq (`compress_material` at each `--quality` Q of docs/encoder.md, Q 50 = the shipped "
+        "settings; ratio = raw bytes / .btfdb file bytes) and by four baselines built in bench/baselines "
         "with Eigen, each decoded at the 81 x 81 measured directions and evaluated with pipeline/metrics/metrics.h. Baseline "
         "bytes count every stored byte: factors and code-vectors 8-bit, each vector with its own float32 [min, max] "
         "range, VQ indices at ceil(log2 N) bits. Baselines: **per-view PCA** (a PCA per view over texels' 81 lights x "
@@ -454,14 +455,20 @@ int main(int argc, char** argv) {
   synth.insert(synth.end(), rd.big.begin(), rd.big.end());
 
   const std::string rd_command = run_command();
-  auto run_case = [&](const std::string& key, const std::string& title, const MeasuredSample& sample) {
+  auto run_case = [&](const std::string& key, const std::string& title, const MeasuredSample& measured) {
     std::fprintf(stderr, "== %s\n", title.c_str());
+    // As users have it: JPEG images in a zip, read back (what every method below compresses and is
+    // scored against).
+    const auto zip = args.scratch / ("rd-" + key + ".zip");
+    write_sample(measured, zip.string());
+    const MeasuredSample sample = load_sample(zip.string());
+    std::filesystem::remove(zip);
     const bench::Stopwatch clock;
     std::vector<Point> points;
     const double raw = double(sample.raw_bytes());
-    std::vector<std::pair<double, double>> settings;  // (threshold scale, phase2_fraction or -1)
-    for (double s : rd.scales) settings.emplace_back(s, -1.0);
-    for (double f : rd.phase2) settings.emplace_back(1.0, f);
+    std::vector<std::pair<double, double>> settings;  // (quality, phase2_fraction or -1)
+    for (double q : rd.qualities) settings.emplace_back(q, -1.0);
+    for (double f : rd.phase2) settings.emplace_back(kDefaultQuality, f);
     for (const auto& [s, f] : settings) {
       points.push_back(run_btfvq(sample, s, f, args.scratch));
       points.back().ratio = raw / double(points.back().bytes);
@@ -504,7 +511,7 @@ int main(int argc, char** argv) {
     char ceil_text[512];
     std::snprintf(ceil_text, sizeof ceil_text,
                   "Parametrization ceiling (every texel resampled to the grid and decoded back, no quantization): "
-                  "MSSIM %.3f, PSNR %.1f dB, CIEDE2000 %.2f. btfvq's MSSIM spans %.3f-%.3f over the threshold scales.",
+                  "MSSIM %.3f, PSNR %.1f dB, CIEDE2000 %.2f. btfvq's MSSIM spans %.3f-%.3f over the qualities.",
                   ceiling.mssim_y, ceiling.psnr, ceiling.ciede2000_mean, lo, hi);
     md << "\n" << ceil_text << "\n\nMatched MSSIM (btfvq / best PCA baseline, log-ratio interpolated along each curve): "
        << m.text << "\n\nAgainst per-view PCA alone (the \"PCA\" column of paper 000): " << per_view.text << "\n\n";
