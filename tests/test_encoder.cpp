@@ -253,12 +253,12 @@ TEST_CASE("HDR and MSE encodings keep the guarantee too") {
 TEST_CASE("thresholds come from the config; bad values are ConfigErrors naming the key") {
   auto d = ParameterDictionary::embedded_default("pipeline");
   const Thresholds t = Thresholds::from(d, Metric::SSIM);
-  CHECK(t.p4 == doctest::Approx(0.10));
+  CHECK(t.p4 == doctest::Approx(0.09));
   auto mse = ParameterDictionary::embedded_default("pipeline");
   mse.merge(ParameterDictionary::parse(R"({"similarity": {"metric": "mse"}})", "override"));
   CHECK(Thresholds::from(mse).p4 == doctest::Approx(6.0));
-  CHECK(Thresholds::from(d).p4 == doctest::Approx(0.10));
-  CHECK(t.c == doctest::Approx(3.0));
+  CHECK(Thresholds::from(d).p4 == doctest::Approx(0.09));
+  CHECK(t.c == doctest::Approx(2.7));
   const Thresholds r = t.relaxed(2.5);
   CHECK(r.p1 == doctest::Approx(2.5 * t.p1));
   CHECK(r.c == doctest::Approx(2.5 * t.c));
