@@ -167,13 +167,13 @@ Influence influence(const AngularGrid& g, const std::vector<Direction>& views,
   in.light.assign(g.slice2(), 0.0);
   for (size_t v = 0; v < views.size(); ++v) {
     const Cell t = g.theta_v_cell(views[v].theta);
-    const bool pole = views[v].theta < kPoleTheta;
-    for (int p = 0; p < g.n_phi_v; ++p) {
-      const Cell ph = pole ? Cell{p, p, 0.0} : g.phi_v_cell(views[v].phi);
-      const double share = pole ? 1.0 / g.n_phi_v : 1.0;
-      for (const auto& [node, w] : {std::pair{ph.i0, 1 - ph.w}, std::pair{ph.i1, ph.w}})
-        add_cell(in.view, t, share * w, 1, size_t(node) * size_t(g.n_theta_v));
-      if (!pole) break;
+    const size_t nt = size_t(g.n_theta_v);
+    if (views[v].theta < kPoleTheta) {  // no azimuth: every phi_v node alike
+      for (int p = 0; p < g.n_phi_v; ++p) add_cell(in.view, t, 1.0 / g.n_phi_v, 1, size_t(p) * nt);
+    } else {
+      const Cell ph = g.phi_v_cell(views[v].phi);
+      add_cell(in.view, t, 1 - ph.w, 1, size_t(ph.i0) * nt);
+      add_cell(in.view, t, ph.w, 1, size_t(ph.i1) * nt);
     }
     for (const Direction& l : lights[v]) {
       const OnionAngles o = to_onion(l, views[v].phi);
