@@ -51,8 +51,8 @@ class StageBars {
     }
     if (!bar_) return;
     const double f = p.texels_total ? double(p.texels_done) / double(p.texels_total) : 0.0;
-    const std::string unit = p.stage == "load" ? " images" : " texels, P4 " + std::to_string(p.sizes[CodebookId::P4]) +
-                                                                 ", P1 " + std::to_string(p.sizes[CodebookId::P1]);
+    const std::string sizes = ", P4 " + std::to_string(p.sizes[CodebookId::P4]) + ", P1 " + std::to_string(p.sizes[CodebookId::P1]);
+    const std::string unit = p.stage == "load" ? " images" : (p.stage == "refine" ? " iterations" : " texels") + sizes;
     bar_->update(f, std::to_string(p.texels_done) + "/" + std::to_string(p.texels_total) + unit);
   }
   void finish() {

@@ -36,7 +36,7 @@ struct JobSpec {
 
 // What a running job reports; the service derives elapsed time and ETA from it.
 struct JobProgress {
-  std::string stage;          // "load", "resample", "phase1", "phase2", "phase3", "write", ...
+  std::string stage;          // "load", "resample", "phase1", "phase2", "refine", "phase3", "write", ...
   int phase = 0;              // 1, 2, 3 during the three-phase schedule; 0 otherwise
   double fraction = 0;        // of the whole job, 0..1
   uint64_t texels_done = 0;   // within the current stage

@@ -258,7 +258,8 @@ TEST_CASE("thresholds come from the config; bad values are ConfigErrors naming t
   mse.merge(ParameterDictionary::parse(R"({"similarity": {"metric": "mse"}})", "override"));
   CHECK(Thresholds::from(mse).p4 == doctest::Approx(6.0));
   CHECK(Thresholds::from(d).p4 == doctest::Approx(0.09));
-  CHECK(t.c == doctest::Approx(2.7));
+  CHECK(t.c == doctest::Approx(1.74));
+  CHECK(t.p2 == doctest::Approx(0.058));
   const Thresholds r = t.relaxed(2.5);
   CHECK(r.p1 == doctest::Approx(2.5 * t.p1));
   CHECK(r.c == doctest::Approx(2.5 * t.c));

@@ -52,6 +52,12 @@ bool has_content(const Database& db) {
 constexpr double kStageStart[4] = {0.0, 0.02, 0.35, 0.55};
 constexpr double kStageEnd[4] = {0.02, 0.35, 0.55, 1.0};
 
+nlohmann::json refine_json(const ScheduleReport& r) {
+  nlohmann::json steps = nlohmann::json::array();
+  for (const RefineStep& s : r.refine) steps.push_back({{"mse_before", s.mse_before}, {"mse_after", s.mse_after}});
+  return {{"texels", r.refine_texels}, {"iterations", steps}, {"seconds", r.refine_seconds}};
+}
+
 }  // namespace
 
 void validate_pipeline_config(const ParameterDictionary& config) { read_settings(config); }
@@ -149,8 +155,11 @@ CompressReport compress_material(Database& db, const MeasuredSample& sample, con
       db.codebooks, sample.dynamic(), sample.width(), sample.height(), source, s.thresholds, s.similarity, s.schedule,
       [&](const ScheduleProgress& p) {
         const double f = p.total ? double(p.done) / double(p.total) : 1.0;
-        report("phase" + std::to_string(p.phase), p.phase, p.done, p.total,
-               kStageStart[p.phase] + f * (kStageEnd[p.phase] - kStageStart[p.phase]));
+        if (p.refining)
+          report("refine", 0, p.done, p.total, kStageEnd[2]);
+        else
+          report("phase" + std::to_string(p.phase), p.phase, p.done, p.total,
+                 kStageStart[p.phase] + f * (kStageEnd[p.phase] - kStageStart[p.phase]));
       },
       options.cancelled);
 
@@ -193,6 +202,7 @@ CompressReport compress_material(Database& db, const MeasuredSample& sample, con
                            {"resample", resample_seconds},
                            {"schedule_total", seconds_since(t_schedule)}}},
               {"dissimilarity", {{"mean", mean_dissimilarity}, {"max", worst}}},
+              {"refine", refine_json(r)},
               {"phase3_composition", {{"texels", r.composed}, {"propose_seconds", r.propose_seconds}, {"adopt_seconds", r.adopt_seconds}}},
               {"search", {{"path", r.search == SearchPath::Pruned          ? "pruned"
                                    : r.search == SearchPath::BatchedOpenCL ? "batched-opencl"

@@ -21,9 +21,9 @@
 namespace btfvq {
 
 struct CompressProgress {
-  std::string stage;        // "load", "resample", "phase1", "phase2", "phase3", "done", then "write"
+  std::string stage;        // "load", "resample", "phase1", "phase2", "refine", "phase3", "done", then "write"
   int phase = 0;            // 1, 2, 3 during the schedule; 0 otherwise
-  size_t texels_done = 0;   // within the current stage (images during "load")
+  size_t texels_done = 0;   // within the current stage (images during "load", iterations during "refine")
   size_t texels_total = 0;
   double fraction = 0;      // compress_material: of this material; compress_database: of the whole call; 0..1
   CodebookSizes sizes{};

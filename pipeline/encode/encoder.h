@@ -100,7 +100,7 @@ class Encoder {
   // Thread-safe (const) as long as nobody grows the code-books at the same time.
   P6Entry encode_frozen(const float* texel) const;
 
-  // Phase-3 refinement, in two steps so that the search runs in parallel and the code-books grow in
+  // Phase-3 composition, in two steps so that the search runs in parallel and the code-books grow in
   // texel order: a P4 entry made of the best stored P3 entry of every phi_v group (nothing below P4
   // is added), with the texel's scale and dissimilarity; false if a group has no candidate.
   // Thread-safe (const), as it reads only P3 and below, which phase 3 never changes.

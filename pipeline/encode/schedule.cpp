@@ -24,6 +24,7 @@ ScheduleSettings ScheduleSettings::from(const ParameterDictionary& d) {
   s.search = d.string("schedule.search");
   s.compose_threshold = d.number("schedule.compose_threshold", 0.0, 2.0);
   s.compose_gain = d.number("schedule.compose_gain", 0.0, 2.0);
+  s.refine = RefineSettings::from(d);
   if (s.search != "auto" && s.search != "pruned" && s.search != "batched" && s.search != "batched-reference")
     throw ConfigError(d.origin() + ": 'schedule.search' = '" + s.search +
                       "' must be \"auto\", \"pruned\", \"batched\" or \"batched-reference\"");
@@ -92,15 +93,59 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
   const size_t total = order.size(), samples = books.grid.samples();
   size_t n1, n2;
   phase_sizes(total, schedule, &n1, &n2);
+
+  // With a refinement, phase 3 assigns every texel: the growing phases' own assignments predate it.
+  const bool refining = schedule.refine.iterations > 0 && n1 + n2 > 0;
   const size_t bounds[4] = {0, n1, n1 + n2, total};
+  const size_t phase3_from = refining ? 0 : bounds[2];
+  const size_t refine_texels = std::max(bounds[2], size_t(std::llround(schedule.refine.fraction * double(total))));
 
   ScheduleResult result;
   result.p6_index.assign(total, -1);
   result.p6_scale.assign(total, 0.0f);
   result.dissimilarity.assign(total, 0.0f);
-  Encoder encoder(books, dyn, thresholds, similarity);
+  const CodebookSizes first = CodebookSizes::of(books);  // rows of earlier materials are not refined
+  auto encoder = std::make_unique<Encoder>(books, dyn, thresholds, similarity);
+  EncoderStats grown;  // of encoders replaced after a refinement
   const size_t tile = size_t(schedule.tile_texels);
+  const SearchPath path = schedule.search_path(books.grid, similarity);
   std::unique_ptr<FrozenSearch> frozen;  // built when phase 3 starts: the code-books are final then
+
+  // Lloyd iterations on the first refine_texels texels in Halton order: assign (the phase-3
+  // search), update (refine_step); the encoder is rebuilt after each update, as its caches hold
+  // the moved rows.
+  auto refine = [&] {
+    const auto t = std::chrono::steady_clock::now();
+    Assignment as;
+    as.ids.assign(order.begin(), order.begin() + ptrdiff_t(refine_texels));
+    as.p4.resize(refine_texels);
+    as.scale.resize(refine_texels);
+    std::vector<float> buffer;
+    std::vector<P6Entry> entries;
+    for (int it = 0; it < schedule.refine.iterations; ++it) {
+      if (progress) progress({2, true, size_t(it), size_t(schedule.refine.iterations), CodebookSizes::of(books)});
+      FrozenSearch search(*encoder, path, schedule.threads);
+      for (size_t at = 0; at < refine_texels; at += tile) {
+        if (cancelled && cancelled()) throw CancelledError("encoding cancelled in the refinement");
+        const size_t n = std::min(tile, refine_texels - at);
+        buffer.resize(n * 3 * samples);
+        entries.resize(n);
+        source(as.ids.data() + at, n, buffer.data());
+        search.encode(buffer.data(), n, entries.data());
+        for (size_t i = 0; i < n; ++i) {
+          as.p4[at + i] = entries[i].index;
+          as.scale[at + i] = entries[i].scale;
+        }
+      }
+      const RefineStep step = refine_step(books, first, dyn, as, source, tile, it == 0 ? schedule.refine.merge : RefineMerge{});
+      result.report.refine.push_back(step);
+      grown.add(encoder->stats());
+      encoder = std::make_unique<Encoder>(books, dyn, encoder->thresholds(), similarity);
+      if (!(step.mse_before - step.mse_after > schedule.refine.min_gain * step.mse_before)) break;
+    }
+    result.report.refine_texels = refine_texels;
+    result.report.refine_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+  };
 
   // Tiles of consecutive texels in Halton order, never crossing a phase boundary. The next tile is
   // resampled on another thread while the current one is encoded (phases 1 and 2 grow the
@@ -111,7 +156,7 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
   };
   std::vector<Tile> tiles;
   for (int phase = 1; phase <= 3; ++phase)
-    for (size_t at = bounds[phase - 1]; at < bounds[phase]; at += tile)
+    for (size_t at = phase == 3 ? phase3_from : bounds[phase - 1]; at < bounds[phase]; at += tile)
       tiles.push_back({phase, at, std::min(tile, bounds[phase] - at)});
   std::vector<float> buffers[2];
   auto resample = [&](size_t k) {
@@ -127,11 +172,13 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
     const auto [phase, at, n] = tiles[k];
     next.get();  // the tile's texels (rethrows the source's error)
     if (cancelled && cancelled()) throw CancelledError("encoding cancelled in phase " + std::to_string(phase));
+    const size_t from = phase == 3 ? phase3_from : bounds[phase - 1];
+    if (phase == 3 && at == from && refining) refine();  // before the next prefetch: one source call at a time
     if (k + 1 < tiles.size()) next = std::async(std::launch::async, resample, k + 1);
     const float* texels = buffers[k % 2].data();
-    if (at == bounds[phase - 1]) {
+    if (at == from) {
       t0 = std::chrono::steady_clock::now();
-      if (phase == 2) encoder.set_thresholds(thresholds.relaxed(schedule.relax_factor));
+      if (phase == 2) encoder->set_thresholds(thresholds.relaxed(schedule.relax_factor));
     }
     auto store = [&](size_t i, const P6Entry& e) {
       const uint32_t id = order[at + i];
@@ -140,11 +187,10 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
       result.dissimilarity[id] = float(e.dissimilarity);
     };
     if (phase < 3) {
-      for (size_t i = 0; i < n; ++i) store(i, encoder.encode_growing(texels + i * 3 * samples));
+      for (size_t i = 0; i < n; ++i) store(i, encoder->encode_growing(texels + i * 3 * samples));
     } else {
       if (!frozen)
-        frozen = std::make_unique<FrozenSearch>(
-            encoder, schedule.search_path(encoder.codebooks().grid, encoder.settings()), schedule.threads);
+        frozen = std::make_unique<FrozenSearch>(*encoder, path, schedule.threads);
       std::vector<P6Entry> entries(n);
       frozen->encode(texels, n, entries.data());
       // Proposals in parallel (they read only the frozen P3 and below), adoption in texel order: an
@@ -157,7 +203,7 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
       std::vector<P4Proposal> proposals(todo.size());
       std::vector<char> proposed(todo.size());
       parallel_for(0, todo.size(), [&](size_t k) {
-        proposed[k] = encoder.propose_p4(texels + todo[k] * 3 * samples, &proposals[k]);
+        proposed[k] = encoder->propose_p4(texels + todo[k] * 3 * samples, &proposals[k]);
       }, ParallelOptions{size_t(schedule.threads), 1});
       const auto t_adopt = std::chrono::steady_clock::now();
       result.report.propose_seconds += std::chrono::duration<double>(t_adopt - t_propose).count();
@@ -177,7 +223,7 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
         }
         if (!near.empty()) {
           try {
-            const P6Entry a = encoder.encode_frozen_among(texels + todo[k] * 3 * samples, near, 1.0 - e.dissimilarity);
+            const P6Entry a = encoder->encode_frozen_among(texels + todo[k] * 3 * samples, near, 1.0 - e.dissimilarity);
             if (a.dissimilarity < e.dissimilarity) e = a;
           } catch (const InputError&) {  // none is closer
           }
@@ -185,7 +231,7 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
         }
         if (!(proposals[k].entry.dissimilarity < e.dissimilarity - schedule.compose_gain)) continue;
         const uint32_t before = uint32_t(books.p4_index.rows());
-        e = encoder.adopt_p4(proposals[k]);
+        e = encoder->adopt_p4(proposals[k]);
         if (books.p4_index.rows() > before) {
           added.push_back({e.index, k});
           ++result.report.composed;
@@ -195,17 +241,19 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
       if (books.p4_index.rows() > tile_start) frozen->sync();
       for (size_t i = 0; i < n; ++i) store(i, entries[i]);
     }
-    if (progress) progress({phase, at + n - bounds[phase - 1], bounds[phase] - bounds[phase - 1], CodebookSizes::of(books)});
+    if (progress) progress({phase, false, at + n - from, bounds[phase] - from, CodebookSizes::of(books)});
     if (at + n == bounds[phase]) {
       result.report.sizes[phase - 1] = CodebookSizes::of(books);
       result.report.seconds[phase - 1] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     }
   }
   for (int phase = 1; phase <= 3; ++phase) {
-    result.report.texels[phase - 1] = bounds[phase] - bounds[phase - 1];
-    if (bounds[phase] == bounds[phase - 1]) result.report.sizes[phase - 1] = CodebookSizes::of(books);
+    const size_t from = phase == 3 ? phase3_from : bounds[phase - 1];
+    result.report.texels[phase - 1] = bounds[phase] - from;
+    if (bounds[phase] == from) result.report.sizes[phase - 1] = CodebookSizes::of(books);
   }
-  result.report.encoder = encoder.stats();
+  grown.add(encoder->stats());
+  result.report.encoder = grown;
   if (frozen) {
     result.report.search = frozen->path();
     result.report.search_stats = frozen->stats();

@@ -15,6 +15,7 @@
 #include "pipeline/util/config.h"
 #include "pipeline/encode/encoder.h"
 #include "pipeline/encode/frozen_search.h"
+#include "pipeline/encode/refine.h"
 
 namespace btfvq {
 
@@ -29,23 +30,24 @@ struct ScheduleSettings {
   // "batched" (OpenCL, or its C++ reference without OpenCL), "batched-reference" (the kernel's C++
   // reference even on OpenCL: for comparisons). All give the same entries.
   std::string search;
-  // Phase-3 refinement: a texel whose best stored P4 entry is farther than compose_threshold
+  // Phase-3 composition: a texel whose best stored P4 entry is farther than compose_threshold
   // (dissimilarity; 2 = never) gets a new P4 entry of the best stored P3 entry per phi_v group when
   // that is at least compose_gain closer (Encoder::compose_frozen).
   double compose_threshold = 0;
   double compose_gain = 0;
+  // Lloyd refinement between the growing phases and phase 3 (the "refine" section; off when
+  // refine.iterations is 0): phase 3 then assigns every texel, those of phases 1 and 2 included.
+  RefineSettings refine;
   SearchPath search_path(const AngularGrid& grid, const SimilaritySettings& similarity) const;
 
-  // Reads the "schedule" section.
+  // Reads the "schedule" and "refine" sections.
   static ScheduleSettings from(const ParameterDictionary& d);
   static ScheduleSettings defaults();  // from(the shipped configs/pipeline.json)
 };
 
-// Resamples the given texels (ids y * width + x) into out (n x 3 x grid.samples() floats).
-using TexelSource = std::function<void(const uint32_t* texel_ids, size_t n, float* out)>;
-
 struct ScheduleProgress {
   int phase = 1;  // 1, 2 or 3
+  bool refining = false;  // between phases 2 and 3: done / total count refinement iterations
   size_t done = 0, total = 0;  // texels of this phase
   CodebookSizes sizes;
 };
@@ -59,6 +61,9 @@ struct ScheduleReport {
   SearchStats search_stats;
   size_t composed = 0;  // phase-3 texels given a new P4 entry (the entries: P4 after phase 3 - after phase 2)
   double propose_seconds = 0, adopt_seconds = 0;  // of phase 3's composition (parallel, in texel order)
+  size_t refine_texels = 0;         // the texels the refinement fitted the entries to
+  std::vector<RefineStep> refine;   // one per iteration
+  double refine_seconds = 0;        // assignments and updates
 };
 
 struct ScheduleResult {

@@ -1,0 +1,549 @@
+#include "pipeline/encode/refine.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <map>
+
+#include <btfvq/error.h>
+#include "pipeline/encode/similarity.h"
+#include "pipeline/util/parallel.h"
+
+namespace btfvq {
+
+RefineSettings RefineSettings::from(const ParameterDictionary& d) {
+  RefineSettings s;
+  s.iterations = d.integer("refine.iterations", 0, 100);
+  s.fraction = d.number("refine.fraction", 0.0, 1.0);
+  s.min_gain = d.number("refine.min_gain", 0.0, 1.0);
+  s.merge.p1 = d.number("refine.p1_merge", 0.0, 2.0);
+  s.merge.p2 = d.number("refine.p2_merge", 0.0, 1000.0);
+  s.merge.i1 = d.number("refine.i1_merge", 0.0, 1000.0);
+  s.merge.i2 = d.number("refine.i2_merge", 0.0, 1000.0);
+  return s;
+}
+
+namespace {
+
+// Rounds of the alternating updates inside one step: each is exact, so more only cost time; a few
+// take most of the gain because the blocks are only weakly coupled.
+constexpr int kLuminanceRounds = 4;
+constexpr int kChromaRounds = 2;
+constexpr int kScaleRounds = 3;
+
+// Values below this are stored as 0: a least-squares density of a few 1e-7 would stretch the
+// logarithmic quantization range of the whole chunk (docs/format.md) for nothing visible.
+constexpr float kTiny = 1e-6f;
+
+float non_negative(double v) { return v > double(kTiny) ? float(v) : 0.0f; }
+
+struct Layout {
+  int nb, na, nt, np;
+  size_t samples;
+  explicit Layout(const AngularGrid& g)
+      : nb(g.n_beta), na(g.n_alpha), nt(g.n_theta_v), np(g.n_phi_v), samples(g.samples()) {}
+  int planes() const { return np * nt; }
+};
+
+// What the texels say about the lower code-books, given the scales above them.
+struct LowerSums {
+  // Per added P2 row and alpha: sum of S^2 z_b (z the target of ps d_b) and of S^2.
+  std::vector<double> lum, lum_w;
+  // Per added I1 row and beta: sum of w z (two chroma channels) and of w.
+  std::vector<double> chroma, chroma_w;
+  // Per added I2 row: sum of w over its uses (planes).
+  std::vector<double> i2_w;
+};
+
+// Per texel and plane, what the plane scales see: alpha = (L - o).(x - o), beta = |L - o|^2 over the
+// scaled channels; per texel the rest of its squared error.
+struct PlaneSums {
+  std::vector<double> alpha, beta;  // texel-major, planes() each
+  std::vector<double> gamma;        // per texel: |x - o|^2 over the scaled channels + unscaled error
+};
+
+template <class F>
+void for_each_tile(const Assignment& a, const TexelSource& source, size_t tile, size_t values, F&& f) {
+  std::vector<float> buffer;
+  for (size_t at = 0; at < a.ids.size(); at += tile) {
+    const size_t n = std::min(tile, a.ids.size() - at);
+    buffer.resize(n * values);
+    source(a.ids.data() + at, n, buffer.data());
+    for (size_t i = 0; i < n; ++i) f(at + i, buffer.data() + i * values);
+  }
+}
+
+// Pass over the data with the current code-books: the sums of LowerSums and the squared error.
+double lower_sums(const Codebooks& k, const CodebookSizes& first, Dynamic dyn, const Assignment& as,
+                  const TexelSource& source, size_t tile, LowerSums& out) {
+  const Layout L(k.grid);
+  const size_t p2_first = first[CodebookId::P2], i1_first = first[CodebookId::I1];
+  out.lum.assign((k.p2_index.rows() - p2_first) * size_t(L.na * L.nb), 0.0);
+  out.lum_w.assign((k.p2_index.rows() - p2_first) * size_t(L.na), 0.0);
+  out.chroma.assign((k.i1.rows() - i1_first) * size_t(L.nb) * 2, 0.0);
+  out.chroma_w.assign((k.i1.rows() - i1_first) * size_t(L.nb), 0.0);
+  const size_t i2_first = first[CodebookId::I2];
+  out.i2_w.assign(k.i2.rows() - i2_first, 0.0);
+  const float oy = channel_offset(dyn, 0), oc = channel_offset(dyn, 1);
+  const bool chroma_scales = channel_scales(dyn, 1);
+  double error = 0;
+  for_each_tile(as, source, tile, 3 * L.samples, [&](size_t t, const float* x) {
+    const float s6 = as.scale[t];
+    const uint32_t p4 = as.p4[t];
+    for (int p = 0; p < L.np; ++p) {
+      const uint32_t p3 = k.p4_index.at(p4, size_t(p));
+      const float s4 = s6 * k.p4_scale.at(p4, size_t(p));
+      for (int th = 0; th < L.nt; ++th) {
+        const uint32_t m = k.p3_index.at(p3, size_t(th));
+        const double S = double(s4) * k.p3_scale.at(p3, size_t(th)), S2 = S * S;
+        const uint32_t q = k.m.at(m, 0), j = k.m.at(m, 1);
+        if (j >= i2_first) out.i2_w[j - i2_first] += chroma_scales ? S2 : 1.0;
+        for (int a = 0; a < L.na; ++a) {
+          const float* d = k.p1.row(k.p2_index.at(q, size_t(a)));
+          const double ps = k.p2_scale.at(q, size_t(a));
+          const uint32_t i1 = k.i2.at(j, size_t(a));
+          const uint32_t* colours = k.i1.row(i1);
+          const size_t i = k.grid.index(p, th, a, 0);
+          const float* y = x + i;
+          const float* cb = x + L.samples + i;
+          const float* cr = x + 2 * L.samples + i;
+          double* lum = q >= p2_first ? &out.lum[((q - p2_first) * size_t(L.na) + size_t(a)) * size_t(L.nb)] : nullptr;
+          if (lum) out.lum_w[(q - p2_first) * size_t(L.na) + size_t(a)] += S2;
+          const bool chroma_new = i1 >= i1_first;
+          for (int b = 0; b < L.nb; ++b) {
+            const double ry = oy + S * (ps * d[b] - oy);
+            const float* c = k.c.row(colours[b]);
+            const double rcb = chroma_scales ? oc + S * (c[0] - oc) : c[0];
+            const double rcr = chroma_scales ? oc + S * (c[1] - oc) : c[1];
+            error += (ry - y[b]) * (ry - y[b]) + (rcb - cb[b]) * (rcb - cb[b]) + (rcr - cr[b]) * (rcr - cr[b]);
+            if (lum) lum[b] += S * (y[b] - oy) + S2 * oy;
+            if (chroma_new) {
+              const size_t at = (i1 - i1_first) * size_t(L.nb) + size_t(b);
+              if (chroma_scales) {
+                out.chroma[2 * at] += S * (cb[b] - oc) + S2 * oc;
+                out.chroma[2 * at + 1] += S * (cr[b] - oc) + S2 * oc;
+                out.chroma_w[at] += S2;
+              } else {
+                out.chroma[2 * at] += cb[b];
+                out.chroma[2 * at + 1] += cr[b];
+                out.chroma_w[at] += 1;
+              }
+            }
+          }
+        }
+      }
+    }
+  });
+  return error;
+}
+
+// Which row each row merges into. Rows (dim values each) are taken heaviest first; a row joins the
+// nearest leader within its reach, radius^2 x mean weight / its weight (the error a merge adds is
+// the row's weight times the squared distance, so heavy rows merge only when close, light ones
+// readily), else it leads. Rows of weight 0 (no texel reaches them) stay themselves. Two rows are
+// at least sqrt(dim) times the difference of their means apart, so the leaders are searched
+// outward from the row's mean until that bound passes the nearest found.
+std::vector<uint32_t> leaders_of(const std::vector<float>& rows, size_t dim, const std::vector<double>& weight,
+                                 double radius) {
+  const size_t n = weight.size();
+  std::vector<uint32_t> leader(n);
+  for (size_t r = 0; r < n; ++r) leader[r] = uint32_t(r);
+  std::vector<uint32_t> order;
+  double mean_weight = 0;
+  for (uint32_t r = 0; r < n; ++r)
+    if (weight[r] > 0) {
+      order.push_back(r);
+      mean_weight += weight[r];
+    }
+  if (order.empty() || !(radius > 0)) return leader;
+  mean_weight /= double(order.size());
+  std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return weight[a] > weight[b]; });
+  std::vector<float> mean(n, 0.0f);
+  for (size_t r = 0; r < n; ++r) {
+    double sum = 0;
+    for (size_t v = 0; v < dim; ++v) sum += rows[r * dim + v];
+    mean[r] = float(sum / double(dim));
+  }
+  std::multimap<float, uint32_t> leaders;  // by mean
+  for (uint32_t r : order) {
+    const float* x = &rows[size_t(r) * dim];
+    double best = radius * radius * mean_weight / weight[r];  // the reach
+    uint32_t chosen = UINT32_MAX;
+    auto consider = [&](uint32_t l) {
+      const float* y = &rows[size_t(l) * dim];
+      double d = 0;
+      for (size_t v = 0; v < dim && d <= best; ++v) d += double(x[v] - y[v]) * (x[v] - y[v]);
+      if (d <= best) {
+        best = d;
+        chosen = l;
+      }
+    };
+    // Outward from the row's mean on both sides, each side until the bound passes the best so far.
+    auto bound = [&](float m) { return double(dim) * double(m - mean[r]) * double(m - mean[r]); };
+    const auto start = leaders.lower_bound(mean[r]);
+    for (auto it = start; it != leaders.end() && bound(it->first) <= best; ++it) consider(it->second);
+    for (auto it = start; it != leaders.begin();) {
+      --it;
+      if (bound(it->first) > best) break;
+      consider(it->second);
+    }
+    if (chosen == UINT32_MAX)
+      leaders.emplace(mean[r], r);
+    else
+      leader[r] = chosen;
+  }
+  return leader;
+}
+
+// Adds the sums of every merged row (`per_row` values each) to its leader's.
+void move_sums(const std::vector<uint32_t>& leader, size_t per_row, std::vector<double>& sums) {
+  for (size_t r = 0; r < leader.size(); ++r)
+    if (leader[r] != r)
+      for (size_t v = 0; v < per_row; ++v) {
+        sums[leader[r] * per_row + v] += sums[r * per_row + v];
+        sums[r * per_row + v] = 0;
+      }
+}
+
+// Points the indices at or past `from` in `table` (every row at or past `rows_from`) at the leaders.
+void redirect(Table<uint32_t>& table, size_t rows_from, size_t cols, size_t from, const std::vector<uint32_t>& leader) {
+  for (size_t r = rows_from; r < table.rows(); ++r)
+    for (size_t c = 0; c < cols; ++c) {
+      uint32_t& i = table.at(r, c);
+      if (i >= from) i = uint32_t(from + leader[i - from]);
+    }
+}
+
+// Added M rows that became equal are one (the first); added P3 rows point at it.
+void unify_m(Codebooks& k, const CodebookSizes& first) {
+  const size_t m_first = first[CodebookId::M];
+  std::map<std::pair<uint32_t, uint32_t>, uint32_t> by_content;
+  std::vector<uint32_t> same(k.m.rows() - m_first);
+  for (size_t r = m_first; r < k.m.rows(); ++r)
+    same[r - m_first] = by_content.emplace(std::make_pair(k.m.at(r, 0), k.m.at(r, 1)), uint32_t(r)).first->second - uint32_t(m_first);
+  redirect(k.p3_index, first[CodebookId::P3], k.p3_index.cols(), m_first, same);
+}
+
+// Added P1 rows (densities) merged; P2 rows point at the leaders, whose centres the next rounds
+// fit to all of their uses. The growing phases' repairs store most P1 rows exactly, one per
+// failing slice row, so many are near-copies of each other.
+void merge_p1(Codebooks& k, const CodebookSizes& first, const LowerSums& s, double radius) {
+  const size_t nb = k.grid.n_beta, na = k.grid.n_alpha, p1_first = first[CodebookId::P1], p2_first = first[CodebookId::P2];
+  std::vector<double> w(k.p1.rows() - p1_first, 0.0);
+  for (size_t q = p2_first; q < k.p2_index.rows(); ++q)
+    for (size_t a = 0; a < na; ++a) {
+      const uint32_t e = k.p2_index.at(q, a);
+      const double ps = k.p2_scale.at(q, a);
+      if (e >= p1_first) w[e - p1_first] += ps * ps * s.lum_w[(q - p2_first) * na + a];
+    }
+  const std::vector<float> rows(k.p1.data().begin() + ptrdiff_t(p1_first * nb), k.p1.data().end());
+  redirect(k.p2_index, p2_first, na, p1_first, leaders_of(rows, nb, w, radius));
+}
+
+// Added P2 rows merged by their decoded slices (a row's weight is S^2 summed over the planes that
+// use it, the same for every alpha); their sums move to the leader, M rows follow.
+void merge_p2(Codebooks& k, const CodebookSizes& first, LowerSums& s, double radius) {
+  const size_t nb = k.grid.n_beta, na = k.grid.n_alpha, p2_first = first[CodebookId::P2];
+  const size_t n = k.p2_index.rows() - p2_first;
+  std::vector<float> slices(n * na * nb);
+  std::vector<double> w(n);
+  for (size_t q = 0; q < n; ++q) {
+    w[q] = s.lum_w[q * na];
+    for (size_t a = 0; a < na; ++a) {
+      const float* d = k.p1.row(k.p2_index.at(p2_first + q, a));
+      for (size_t b = 0; b < nb; ++b) slices[(q * na + a) * nb + b] = k.p2_scale.at(p2_first + q, a) * d[b];
+    }
+  }
+  const std::vector<uint32_t> leader = leaders_of(slices, na * nb, w, radius);
+  move_sums(leader, na * nb, s.lum);
+  move_sums(leader, na, s.lum_w);
+  Table<uint32_t> p2_of_m(1);
+  for (size_t r = 0; r < k.m.rows(); ++r) p2_of_m.append(&k.m.at(r, 0));
+  redirect(p2_of_m, first[CodebookId::M], 1, p2_first, leader);
+  for (size_t r = first[CodebookId::M]; r < k.m.rows(); ++r) k.m.at(r, 0) = p2_of_m.at(r, 0);
+  unify_m(k, first);
+}
+
+// Decoded chroma of an I1 row: n_beta (a, b) pairs.
+void i1_values(const Codebooks& k, uint32_t r, float* out) {
+  for (size_t b = 0; b < k.i1.cols(); ++b) {
+    out[2 * b] = k.c.at(k.i1.at(r, b), 0);
+    out[2 * b + 1] = k.c.at(k.i1.at(r, b), 1);
+  }
+}
+
+// Added I1 rows merged by their decoded chroma (weight: w summed over their uses, the same for every
+// beta); their sums move to the leader, I2 rows follow.
+void merge_i1(Codebooks& k, const CodebookSizes& first, LowerSums& s, double radius) {
+  const size_t nb = k.grid.n_beta, i1_first = first[CodebookId::I1], n = k.i1.rows() - i1_first;
+  std::vector<float> rows(n * 2 * nb);
+  std::vector<double> w(n);
+  for (size_t r = 0; r < n; ++r) {
+    w[r] = s.chroma_w[r * nb];
+    i1_values(k, uint32_t(i1_first + r), &rows[r * 2 * nb]);
+  }
+  const std::vector<uint32_t> leader = leaders_of(rows, 2 * nb, w, radius);
+  move_sums(leader, 2 * nb, s.chroma);
+  move_sums(leader, nb, s.chroma_w);
+  redirect(k.i2, first[CodebookId::I2], k.i2.cols(), i1_first, leader);
+}
+
+// Added I2 rows merged by their decoded chroma slices; M rows follow. Last of the chroma updates:
+// the sums are kept per I1 row, so a merged I2 row's share cannot be moved.
+void merge_i2(Codebooks& k, const CodebookSizes& first, const LowerSums& s, double radius) {
+  const size_t nb = k.grid.n_beta, na = k.grid.n_alpha, i2_first = first[CodebookId::I2], n = k.i2.rows() - i2_first;
+  std::vector<float> rows(n * na * 2 * nb);
+  for (size_t r = 0; r < n; ++r)
+    for (size_t a = 0; a < na; ++a) i1_values(k, k.i2.at(i2_first + r, a), &rows[(r * na + a) * 2 * nb]);
+  const std::vector<uint32_t> leader = leaders_of(rows, na * 2 * nb, s.i2_w, radius);
+  Table<uint32_t> i2_of_m(1);
+  for (size_t r = 0; r < k.m.rows(); ++r) i2_of_m.append(&k.m.at(r, 1));
+  redirect(i2_of_m, first[CodebookId::M], 1, i2_first, leader);
+  for (size_t r = first[CodebookId::M]; r < k.m.rows(); ++r) k.m.at(r, 1) = i2_of_m.at(r, 0);
+  unify_m(k, first);
+}
+
+// P1 rows at their least-squares centre, then P2 scales refitted, alternately. A density is kept
+// summing to 1 by moving its sum into the P2 scales that use it (the product is what decodes).
+void update_luminance(Codebooks& k, const CodebookSizes& first, LowerSums& s, const RefineMerge& merge) {
+  const size_t nb = k.grid.n_beta, na = k.grid.n_alpha;
+  const size_t p1_first = first[CodebookId::P1], p2_first = first[CodebookId::P2];
+  const size_t p2_rows = k.p2_index.rows();
+  std::vector<double> num, den;
+  for (int round = 0; round < kLuminanceRounds; ++round) {
+    if (round == 1 && merge.p1 > 0) merge_p1(k, first, s, merge.p1);
+    if (round == 2 && merge.p2 > 0) merge_p2(k, first, s, merge.p2);
+    num.assign((k.p1.rows() - p1_first) * nb, 0.0);
+    den.assign(k.p1.rows() - p1_first, 0.0);
+    for (size_t q = p2_first; q < p2_rows; ++q)
+      for (size_t a = 0; a < na; ++a) {
+        const uint32_t e = k.p2_index.at(q, a);
+        if (e < p1_first) continue;
+        const double ps = k.p2_scale.at(q, a);
+        const double* A = &s.lum[((q - p2_first) * na + a) * nb];
+        for (size_t b = 0; b < nb; ++b) num[(e - p1_first) * nb + b] += ps * A[b];
+        den[e - p1_first] += ps * ps * s.lum_w[(q - p2_first) * na + a];
+      }
+    std::vector<double> moved(k.p1.rows() - p1_first, 1.0);
+    for (size_t e = p1_first; e < k.p1.rows(); ++e) {
+      const double w = den[e - p1_first];
+      if (!(w > 0)) continue;
+      float row[1024];
+      double sum = 0;
+      for (size_t b = 0; b < nb; ++b) sum += row[b] = non_negative(num[(e - p1_first) * nb + b] / w);
+      if (!(sum > 0)) continue;
+      for (size_t b = 0; b < nb; ++b) k.p1.at(e, b) = non_negative(row[b] / sum);
+      moved[e - p1_first] = sum;
+    }
+    for (size_t q = p2_first; q < p2_rows; ++q)
+      for (size_t a = 0; a < na; ++a) {
+        const uint32_t e = k.p2_index.at(q, a);
+        if (e >= p1_first) k.p2_scale.at(q, a) = float(k.p2_scale.at(q, a) * moved[e - p1_first]);
+        const double w = s.lum_w[(q - p2_first) * na + a];
+        if (!(w > 0)) continue;
+        const float* d = k.p1.row(e);
+        const double* A = &s.lum[((q - p2_first) * na + a) * nb];
+        double dA = 0, dd = 0;
+        for (size_t b = 0; b < nb; ++b) {
+          dA += d[b] * A[b];
+          dd += double(d[b]) * d[b];
+        }
+        if (dd > 0) k.p2_scale.at(q, a) = non_negative(dA / (dd * w));
+      }
+  }
+}
+
+// C entries at the centre of the chroma that reaches them, then every added I1 row's colour the
+// nearest entry to what reaches it (all of C: published entries are fine to point at).
+void update_chroma(Codebooks& k, const CodebookSizes& first, LowerSums& s, const RefineMerge& merge) {
+  const size_t nb = k.grid.n_beta, c_first = first[CodebookId::C], i1_first = first[CodebookId::I1];
+  const size_t i1_rows = k.i1.rows(), c_rows = k.c.rows();
+  for (int round = 0; round < kChromaRounds; ++round) {
+    if (round == 1 && merge.i1 > 0) merge_i1(k, first, s, merge.i1);
+    std::vector<double> num(2 * (c_rows - c_first), 0.0), den(c_rows - c_first, 0.0);
+    for (size_t r = i1_first; r < i1_rows; ++r)
+      for (size_t b = 0; b < nb; ++b) {
+        const uint32_t c = k.i1.at(r, b);
+        if (c < c_first) continue;
+        const size_t at = (r - i1_first) * nb + b;
+        num[2 * (c - c_first)] += s.chroma[2 * at];
+        num[2 * (c - c_first) + 1] += s.chroma[2 * at + 1];
+        den[c - c_first] += s.chroma_w[at];
+      }
+    for (size_t c = c_first; c < c_rows; ++c)
+      if (den[c - c_first] > 0) {
+        k.c.at(c, 0) = float(num[2 * (c - c_first)] / den[c - c_first]);
+        k.c.at(c, 1) = float(num[2 * (c - c_first) + 1] / den[c - c_first]);
+      }
+    for (size_t r = i1_first; r < i1_rows; ++r)
+      for (size_t b = 0; b < nb; ++b) {
+        const size_t at = (r - i1_first) * nb + b;
+        const double w = s.chroma_w[at];
+        if (!(w > 0)) continue;
+        const double ca = s.chroma[2 * at] / w, cb = s.chroma[2 * at + 1] / w;
+        double best = std::numeric_limits<double>::infinity();
+        for (size_t c = 0; c < c_rows; ++c) {
+          const double da = k.c.at(c, 0) - ca, db = k.c.at(c, 1) - cb, e = da * da + db * db;
+          if (e < best) {
+            best = e;
+            k.i1.at(r, b) = uint32_t(c);
+          }
+        }
+      }
+  }
+}
+
+// Pass over the data with the updated lower code-books: PlaneSums.
+void plane_sums(const Codebooks& k, Dynamic dyn, const Assignment& as, const TexelSource& source, size_t tile,
+                PlaneSums& out) {
+  const Layout L(k.grid);
+  const size_t planes = size_t(L.planes());
+  out.alpha.assign(as.ids.size() * planes, 0.0);
+  out.beta.assign(as.ids.size() * planes, 0.0);
+  out.gamma.assign(as.ids.size(), 0.0);
+  double o[3];
+  bool scaled[3];
+  for (int c = 0; c < 3; ++c) {
+    o[c] = channel_offset(dyn, c);
+    scaled[c] = channel_scales(dyn, c);
+  }
+  for_each_tile(as, source, tile, 3 * L.samples, [&](size_t t, const float* x) {
+    const uint32_t p4 = as.p4[t];
+    double gamma = 0;
+    for (int p = 0; p < L.np; ++p) {
+      const uint32_t p3 = k.p4_index.at(p4, size_t(p));
+      for (int th = 0; th < L.nt; ++th) {
+        const uint32_t m = k.p3_index.at(p3, size_t(th));
+        const uint32_t q = k.m.at(m, 0), j = k.m.at(m, 1);
+        double al = 0, be = 0;
+        for (int a = 0; a < L.na; ++a) {
+          const float* d = k.p1.row(k.p2_index.at(q, size_t(a)));
+          const double ps = k.p2_scale.at(q, size_t(a));
+          const uint32_t* colours = k.i1.row(k.i2.at(j, size_t(a)));
+          const size_t i = k.grid.index(p, th, a, 0);
+          for (int b = 0; b < L.nb; ++b) {
+            const float* c = k.c.row(colours[b]);
+            const double v[3] = {ps * d[b], c[0], c[1]};
+            for (int ch = 0; ch < 3; ++ch) {
+              const double xv = x[size_t(ch) * L.samples + i + size_t(b)];
+              if (scaled[ch]) {
+                al += (v[ch] - o[ch]) * (xv - o[ch]);
+                be += (v[ch] - o[ch]) * (v[ch] - o[ch]);
+                gamma += (xv - o[ch]) * (xv - o[ch]);
+              } else {
+                gamma += (v[ch] - xv) * (v[ch] - xv);
+              }
+            }
+          }
+        }
+        out.alpha[t * planes + size_t(p * L.nt + th)] = al;
+        out.beta[t * planes + size_t(p * L.nt + th)] = be;
+      }
+    }
+    out.gamma[t] = gamma;
+  });
+}
+
+double plane_error(const Codebooks& k, const Assignment& as, const PlaneSums& s) {
+  const Layout L(k.grid);
+  const size_t planes = size_t(L.planes());
+  double error = 0;
+  for (size_t t = 0; t < as.ids.size(); ++t) {
+    double e = s.gamma[t];
+    for (int p = 0; p < L.np; ++p) {
+      const uint32_t p3 = k.p4_index.at(as.p4[t], size_t(p));
+      const double s4 = double(as.scale[t]) * k.p4_scale.at(as.p4[t], size_t(p));
+      for (int th = 0; th < L.nt; ++th) {
+        const double S = s4 * k.p3_scale.at(p3, size_t(th));
+        const size_t at = t * planes + size_t(p * L.nt + th);
+        e += S * (S * s.beta[at] - 2 * s.alpha[at]);
+      }
+    }
+    error += e;
+  }
+  return error;
+}
+
+// P3 scales, P4 scales and P6 scales refitted one block after the other.
+void update_scales(Codebooks& k, const CodebookSizes& first, Assignment& as, const PlaneSums& s) {
+  const Layout L(k.grid);
+  const size_t planes = size_t(L.planes()), nt = size_t(L.nt), np = size_t(L.np);
+  const size_t p3_first = first[CodebookId::P3], p4_first = first[CodebookId::P4];
+  for (int round = 0; round < kScaleRounds; ++round) {
+    std::vector<double> num((k.p3_index.rows() - p3_first) * nt, 0.0), den(num.size(), 0.0);
+    for (size_t t = 0; t < as.ids.size(); ++t)
+      for (size_t p = 0; p < np; ++p) {
+        const uint32_t p3 = k.p4_index.at(as.p4[t], p);
+        if (p3 < p3_first) continue;
+        const double f = double(as.scale[t]) * k.p4_scale.at(as.p4[t], p);
+        for (size_t th = 0; th < nt; ++th) {
+          const size_t at = t * planes + p * nt + th;
+          num[(p3 - p3_first) * nt + th] += f * s.alpha[at];
+          den[(p3 - p3_first) * nt + th] += f * f * s.beta[at];
+        }
+      }
+    for (size_t i = 0; i < num.size(); ++i)
+      if (den[i] > 0) k.p3_scale.data()[p3_first * nt + i] = non_negative(num[i] / den[i]);
+
+    num.assign((k.p4_index.rows() - p4_first) * np, 0.0);
+    den.assign(num.size(), 0.0);
+    for (size_t t = 0; t < as.ids.size(); ++t) {
+      if (as.p4[t] < p4_first) continue;
+      const double s6 = as.scale[t];
+      for (size_t p = 0; p < np; ++p) {
+        const uint32_t p3 = k.p4_index.at(as.p4[t], p);
+        double al = 0, be = 0;
+        for (size_t th = 0; th < nt; ++th) {
+          const double s3 = k.p3_scale.at(p3, th);
+          al += s3 * s.alpha[t * planes + p * nt + th];
+          be += s3 * s3 * s.beta[t * planes + p * nt + th];
+        }
+        num[(as.p4[t] - p4_first) * np + p] += s6 * al;
+        den[(as.p4[t] - p4_first) * np + p] += s6 * s6 * be;
+      }
+    }
+    for (size_t i = 0; i < num.size(); ++i)
+      if (den[i] > 0) k.p4_scale.data()[p4_first * np + i] = non_negative(num[i] / den[i]);
+
+    for (size_t t = 0; t < as.ids.size(); ++t) {
+      double al = 0, be = 0;
+      for (size_t p = 0; p < np; ++p) {
+        const uint32_t p3 = k.p4_index.at(as.p4[t], p);
+        const double s4 = k.p4_scale.at(as.p4[t], p);
+        for (size_t th = 0; th < nt; ++th) {
+          const double f = s4 * k.p3_scale.at(p3, th);
+          al += f * s.alpha[t * planes + p * nt + th];
+          be += f * f * s.beta[t * planes + p * nt + th];
+        }
+      }
+      if (be > 0) as.scale[t] = non_negative(al / be);
+    }
+  }
+}
+
+}  // namespace
+
+RefineStep refine_step(Codebooks& books, const CodebookSizes& first, Dynamic dyn, Assignment& assignment,
+                       const TexelSource& source, size_t tile, const RefineMerge& merge) {
+  if (assignment.p4.size() != assignment.ids.size() || assignment.scale.size() != assignment.ids.size())
+    throw InputError("refine_step: the assignment's ids, P4 entries and scales differ in number");
+  if (books.grid.n_beta > 1024) throw InputError("refine_step: n_beta above 1024");
+  for (uint32_t e : assignment.p4)
+    if (e >= books.p4_index.rows()) throw InputError("refine_step: a P4 index past the end of P4");
+  const double values = double(assignment.ids.size()) * 3.0 * double(books.grid.samples());
+  RefineStep step;
+  if (assignment.ids.empty()) return step;
+  tile = std::max<size_t>(tile, 1);
+  LowerSums lower;
+  step.mse_before = lower_sums(books, first, dyn, assignment, source, tile, lower) / values;
+  update_luminance(books, first, lower, merge);
+  update_chroma(books, first, lower, merge);
+  if (merge.i2 > 0) merge_i2(books, first, lower, merge.i2);
+  PlaneSums planes;
+  plane_sums(books, dyn, assignment, source, tile, planes);
+  update_scales(books, first, assignment, planes);
+  step.mse_after = plane_error(books, assignment, planes) / values;
+  return step;
+}
+
+}  // namespace btfvq

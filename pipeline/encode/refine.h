@@ -1,0 +1,67 @@
+#pragma once
+// Refinement of the code-books a compression adds (Lloyd / LBG, docs/encoder.md "Refinement").
+//
+// The growing phases make an entry of the first slice that missed: it is the centre of nothing. With
+// every texel's P6 entry known, each added entry is moved to the least-squares centre of the slices
+// that reach it, through the chain of scales above them, and each added scale is refitted:
+//
+//   luminance   Y - o = S (ps d_b - o)      S = s6 s4 s3: P1 rows d and P2 scales ps, alternately
+//   chroma      C - o = S (c - o)  (LDR)    C entries c, then each I1 row's C index (nearest centre)
+//   planes      x - o = s6 s4 s3 (L - o)    P3, P4 and P6 scales, one block after the other
+//
+// Every update is the exact minimizer of the squared coding-space error with the rest fixed, so the
+// error never grows. Only rows at or past `first` move (published rows, and rows of materials
+// compressed before, stay byte for byte), and only through texels of this material, which are the
+// only ones that reach them. Sums are taken on one thread in texel order: the result does not depend
+// on the device or the thread count.
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <vector>
+
+#include "pipeline/codebook.h"
+#include "pipeline/util/config.h"
+
+namespace btfvq {
+
+// Added rows that the refinement merges, by how far apart they may be: a row's radius is this
+// at the mean weight (the squared error per unit distance^2) and shrinks as 1/sqrt(weight), so a
+// merge costs at most radius^2 x mean weight. 0: none merge.
+struct RefineMerge {
+  double p1 = 0;  // P1 densities (Euclidean over n_beta values)
+  double p2 = 0;  // P2 slices (Euclidean over n_alpha x n_beta luminance values)
+  double i1 = 0;  // I1 rows (over their n_beta decoded (a, b) pairs)
+  double i2 = 0;  // I2 slices (over n_alpha x n_beta decoded (a, b) pairs)
+};
+
+// The "refine" section of configs/pipeline.json.
+struct RefineSettings {
+  int iterations = 0;    // Lloyd iterations (assign, update) at most; 0: no refinement
+  double fraction = 0;   // of the texels, a prefix of the Halton order, that the entries are fitted to
+  double min_gain = 0;   // stop once an iteration lowers the error by less than this fraction
+  RefineMerge merge;     // in the first iteration
+
+  static RefineSettings from(const ParameterDictionary& d);
+};
+
+// Resamples the given texels (ids y * width + x) into out (n x 3 x grid.samples() floats).
+using TexelSource = std::function<void(const uint32_t* texel_ids, size_t n, float* out)>;
+
+// Texels and what they are encoded as: P4 entry and P6 scale per id.
+struct Assignment {
+  std::vector<uint32_t> ids;
+  std::vector<uint32_t> p4;
+  std::vector<float> scale;
+};
+
+struct RefineStep {
+  double mse_before = 0, mse_after = 0;  // per value, coding space, over the assignment's texels
+};
+
+// One update of the rows at or past `first` (and of the assignment's scales) for the assignment.
+// Texels come from `source` in tiles of `tile` texels. The rows `merge` makes redundant are left for
+// reclaim_unreachable().
+RefineStep refine_step(Codebooks& books, const CodebookSizes& first, Dynamic dyn, Assignment& assignment,
+                       const TexelSource& source, size_t tile, const RefineMerge& merge = {});
+
+}  // namespace btfvq
