@@ -9,8 +9,9 @@
 //   chroma      C - o = S (c - o)  (LDR)    C entries c, then each I1 row's C index (nearest centre)
 //   planes      x - o = s6 s4 s3 (L - o)    P3, P4 and P6 scales, one block after the other
 //
-// Every update is the exact minimizer of the squared coding-space error with the rest fixed, so the
-// error never grows. Only rows at or past `first` move (published rows, and rows of materials
+// Every update but the merges (RefineMerge) is the exact minimizer of the squared coding-space error
+// with the rest fixed, so without merges the error never grows; a merge trades a bounded error for
+// a row. Only rows at or past `first` move (published rows, and rows of materials
 // compressed before, stay byte for byte), and only through texels of this material, which are the
 // only ones that reach them. Sums are taken on one thread in texel order: the result does not depend
 // on the device or the thread count.
