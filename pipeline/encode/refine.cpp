@@ -205,10 +205,11 @@ void move_sums(const std::vector<uint32_t>& leader, size_t per_row, std::vector<
       }
 }
 
-// Points the indices at or past `from` in `table` (every row at or past `rows_from`) at the leaders.
-void redirect(Table<uint32_t>& table, size_t rows_from, size_t cols, size_t from, const std::vector<uint32_t>& leader) {
+// Points the indices at or past `from` in columns [c0, c1) of the rows at or past `rows_from` at the leaders.
+void redirect(Table<uint32_t>& table, size_t rows_from, size_t c0, size_t c1, size_t from,
+              const std::vector<uint32_t>& leader) {
   for (size_t r = rows_from; r < table.rows(); ++r)
-    for (size_t c = 0; c < cols; ++c) {
+    for (size_t c = c0; c < c1; ++c) {
       uint32_t& i = table.at(r, c);
       if (i >= from) i = uint32_t(from + leader[i - from]);
     }
@@ -221,7 +222,7 @@ void unify_m(Codebooks& k, const CodebookSizes& first) {
   std::vector<uint32_t> same(k.m.rows() - m_first);
   for (size_t r = m_first; r < k.m.rows(); ++r)
     same[r - m_first] = by_content.emplace(std::make_pair(k.m.at(r, 0), k.m.at(r, 1)), uint32_t(r)).first->second - uint32_t(m_first);
-  redirect(k.p3_index, first[CodebookId::P3], k.p3_index.cols(), m_first, same);
+  redirect(k.p3_index, first[CodebookId::P3], 0, k.p3_index.cols(), m_first, same);
 }
 
 // Added P1 rows (densities) merged; P2 rows point at the leaders, whose centres the next rounds
@@ -237,7 +238,7 @@ void merge_p1(Codebooks& k, const CodebookSizes& first, const LowerSums& s, doub
       if (e >= p1_first) w[e - p1_first] += ps * ps * s.lum_w[(q - p2_first) * na + a];
     }
   const std::vector<float> rows(k.p1.data().begin() + ptrdiff_t(p1_first * nb), k.p1.data().end());
-  redirect(k.p2_index, p2_first, na, p1_first, leaders_of(rows, nb, w, radius));
+  redirect(k.p2_index, p2_first, 0, na, p1_first, leaders_of(rows, nb, w, radius));
 }
 
 // Added P2 rows merged by their decoded slices (a row's weight is S^2 summed over the planes that
@@ -257,10 +258,7 @@ void merge_p2(Codebooks& k, const CodebookSizes& first, LowerSums& s, double rad
   const std::vector<uint32_t> leader = leaders_of(slices, na * nb, w, radius);
   move_sums(leader, na * nb, s.lum);
   move_sums(leader, na, s.lum_w);
-  Table<uint32_t> p2_of_m(1);
-  for (size_t r = 0; r < k.m.rows(); ++r) p2_of_m.append(&k.m.at(r, 0));
-  redirect(p2_of_m, first[CodebookId::M], 1, p2_first, leader);
-  for (size_t r = first[CodebookId::M]; r < k.m.rows(); ++r) k.m.at(r, 0) = p2_of_m.at(r, 0);
+  redirect(k.m, first[CodebookId::M], 0, 1, p2_first, leader);
   unify_m(k, first);
 }
 
@@ -285,7 +283,7 @@ void merge_i1(Codebooks& k, const CodebookSizes& first, LowerSums& s, double rad
   const std::vector<uint32_t> leader = leaders_of(rows, 2 * nb, w, radius);
   move_sums(leader, 2 * nb, s.chroma);
   move_sums(leader, nb, s.chroma_w);
-  redirect(k.i2, first[CodebookId::I2], k.i2.cols(), i1_first, leader);
+  redirect(k.i2, first[CodebookId::I2], 0, k.i2.cols(), i1_first, leader);
 }
 
 // Added I2 rows merged by their decoded chroma slices; M rows follow. Last of the chroma updates:
@@ -296,10 +294,7 @@ void merge_i2(Codebooks& k, const CodebookSizes& first, const LowerSums& s, doub
   for (size_t r = 0; r < n; ++r)
     for (size_t a = 0; a < na; ++a) i1_values(k, k.i2.at(i2_first + r, a), &rows[(r * na + a) * 2 * nb]);
   const std::vector<uint32_t> leader = leaders_of(rows, na * 2 * nb, s.i2_w, radius);
-  Table<uint32_t> i2_of_m(1);
-  for (size_t r = 0; r < k.m.rows(); ++r) i2_of_m.append(&k.m.at(r, 1));
-  redirect(i2_of_m, first[CodebookId::M], 1, i2_first, leader);
-  for (size_t r = first[CodebookId::M]; r < k.m.rows(); ++r) k.m.at(r, 1) = i2_of_m.at(r, 0);
+  redirect(k.m, first[CodebookId::M], 1, 2, i2_first, leader);
   unify_m(k, first);
 }
 
