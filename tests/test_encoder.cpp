@@ -253,11 +253,11 @@ TEST_CASE("HDR and MSE encodings keep the guarantee too") {
 TEST_CASE("thresholds come from the config; bad values are ConfigErrors naming the key") {
   auto d = ParameterDictionary::embedded_default("pipeline");
   const Thresholds t = Thresholds::from(d, Metric::SSIM);
-  CHECK(t.p4 == doctest::Approx(0.09));
+  CHECK(t.p4 == doctest::Approx(0.075));
   auto mse = ParameterDictionary::embedded_default("pipeline");
   mse.merge(ParameterDictionary::parse(R"({"similarity": {"metric": "mse"}})", "override"));
   CHECK(Thresholds::from(mse).p4 == doctest::Approx(6.0));
-  CHECK(Thresholds::from(d).p4 == doctest::Approx(0.09));
+  CHECK(Thresholds::from(d).p4 == doctest::Approx(0.075));
   CHECK(t.c == doctest::Approx(1.74));
   CHECK(t.p2 == doctest::Approx(0.058));
   const Thresholds r = t.relaxed(2.5);

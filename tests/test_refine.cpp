@@ -144,6 +144,50 @@ TEST_CASE("merging: near rows become one, more with a larger radius, and the err
   }
 }
 
+TEST_CASE("merging within a budget: the cheapest merges are kept, fewer as the budget shrinks, none at 0 but exact copies") {
+  SyntheticMaterial mat(16, 16);
+  mat.classes = 4;
+  Codebooks grown(mat.grid);
+  const ScheduleResult r = run_schedule(grown, Dynamic::LDR, 16, 16, mat.source(), Thresholds::defaults().relaxed(0.2),
+                                        SimilaritySettings::defaults(), growing_only());
+  const RefineMerge shipped = ScheduleSettings::defaults().refine.merge;
+  REQUIRE(shipped.budget > 0);
+  REQUIRE(shipped.budget < 1);  // the shipped budget binds somewhere
+  auto rows_after = [&](double budget, RefineStep* step) {
+    Codebooks k = grown;
+    Assignment as = assignment_of(r);
+    RefineMerge m{shipped.p1 * 8, shipped.p2 * 8, shipped.i1 * 8, shipped.i2 * 8};
+    m.budget = budget;
+    *step = refine_step(k, {}, Dynamic::LDR, as, mat.source(), 32, m);
+    Material mt;
+    mt.name = "m";
+    mt.width = mt.height = 16;
+    mt.p6_index.assign(r.p6_index.begin(), r.p6_index.end());
+    for (size_t i = 0; i < as.ids.size(); ++i) mt.p6_index[as.ids[i]] = int32_t(as.p4[i]);
+    mt.p6_scale = as.scale;
+    Database db{k, {mt}};
+    reclaim_unreachable(db);
+    REQUIRE_NOTHROW(db.validate());
+    return db.codebooks.p1.rows() + db.codebooks.p2_index.rows() + db.codebooks.i1.rows() + db.codebooks.i2.rows();
+  };
+  RefineStep none, zero, some, all;
+  Codebooks k = grown;
+  Assignment as = assignment_of(r);
+  none = refine_step(k, {}, Dynamic::LDR, as, mat.source(), 32, {});
+  const size_t unmerged = rows_after(0.0, &zero), partly = rows_after(0.02, &some), merged = rows_after(1e300, &all);
+  CAPTURE(unmerged);
+  CAPTURE(partly);
+  CAPTURE(merged);
+  CHECK(merged < partly);
+  CHECK(partly < unmerged);
+  CHECK(zero.mse_after == doctest::Approx(none.mse_after).epsilon(1e-6));  // a budget of 0 merges nothing that costs
+  CHECK(zero.mse_after <= some.mse_after);
+  CHECK(some.mse_after <= all.mse_after);
+  // What the budget allows is a bound on the estimate, and the refits after the merges only lower the
+  // error: the partly merged step ends within the budget of the unmerged one (plus the refits' slack).
+  CHECK(some.mse_after <= zero.mse_after + 4 * 0.02 * some.mse_before);
+}
+
 TEST_CASE("refine_step rejects an assignment that does not fit the code-books") {
   SyntheticMaterial mat(4, 4);
   Codebooks k(mat.grid);

@@ -6,6 +6,7 @@
 #include <map>
 
 #include <btfvq/error.h>
+#include <spdlog/spdlog.h>
 #include "pipeline/encode/similarity.h"
 #include "pipeline/util/parallel.h"
 
@@ -20,6 +21,7 @@ RefineSettings RefineSettings::from(const ParameterDictionary& d) {
   s.merge.p2 = d.number("refine.p2_merge", 0.0, 1000.0);
   s.merge.i1 = d.number("refine.i1_merge", 0.0, 1000.0);
   s.merge.i2 = d.number("refine.i2_merge", 0.0, 1000.0);
+  s.merge.budget = d.number("refine.merge_budget", 0.0, 100.0);
   return s;
 }
 
@@ -142,9 +144,11 @@ double lower_sums(const Codebooks& k, const CodebookSizes& first, Dynamic dyn, c
 // the row's weight times the squared distance, so heavy rows merge only when close, light ones
 // readily), else it leads. Rows of weight 0 (no texel reaches them) stay themselves. Two rows are
 // at least sqrt(dim) times the difference of their means apart, so the leaders are searched
-// outward from the row's mean until that bound passes the nearest found.
+// outward from the row's mean until that bound passes the nearest found. Of the merges found, the
+// cheapest are kept while their added error stays within `budget`; the rest stay themselves (a
+// follower leads nobody, so dropping its merge changes no other row's).
 std::vector<uint32_t> leaders_of(const std::vector<float>& rows, size_t dim, const std::vector<double>& weight,
-                                 double radius) {
+                                 double radius, double budget) {
   const size_t n = weight.size();
   std::vector<uint32_t> leader(n);
   for (size_t r = 0; r < n; ++r) leader[r] = uint32_t(r);
@@ -165,6 +169,7 @@ std::vector<uint32_t> leaders_of(const std::vector<float>& rows, size_t dim, con
     mean[r] = float(sum / double(dim));
   }
   std::multimap<float, uint32_t> leaders;  // by mean
+  std::vector<std::pair<double, uint32_t>> merges;  // (added error, row)
   for (uint32_t r : order) {
     const float* x = &rows[size_t(r) * dim];
     double best = radius * radius * mean_weight / weight[r];  // the reach
@@ -187,11 +192,27 @@ std::vector<uint32_t> leaders_of(const std::vector<float>& rows, size_t dim, con
       if (bound(it->first) > best) break;
       consider(it->second);
     }
-    if (chosen == UINT32_MAX)
+    if (chosen == UINT32_MAX) {
       leaders.emplace(mean[r], r);
-    else
+    } else {
       leader[r] = chosen;
+      merges.emplace_back(weight[r] * best, r);
+    }
   }
+  std::sort(merges.begin(), merges.end());
+  double spent = 0, kept = 0;
+  size_t merged = 0;
+  for (const auto& [cost, r] : merges) {
+    spent += cost;
+    if (spent > budget) {
+      leader[r] = r;
+    } else {
+      kept = spent;
+      ++merged;
+    }
+  }
+  spdlog::debug("refine: rows of {} values: {} of {} merges kept, adding {:.4g} of a budget of {:.4g}", dim, merged,
+                merges.size(), kept, budget);
   return leader;
 }
 
@@ -228,7 +249,7 @@ void unify_m(Codebooks& k, const CodebookSizes& first) {
 // Added P1 rows (densities) merged; P2 rows point at the leaders, whose centres the next rounds
 // fit to all of their uses. The growing phases' repairs store most P1 rows exactly, one per
 // failing slice row, so many are near-copies of each other.
-void merge_p1(Codebooks& k, const CodebookSizes& first, const LowerSums& s, double radius) {
+void merge_p1(Codebooks& k, const CodebookSizes& first, const LowerSums& s, double radius, double budget) {
   const size_t nb = k.grid.n_beta, na = k.grid.n_alpha, p1_first = first[CodebookId::P1], p2_first = first[CodebookId::P2];
   std::vector<double> w(k.p1.rows() - p1_first, 0.0);
   for (size_t q = p2_first; q < k.p2_index.rows(); ++q)
@@ -238,12 +259,12 @@ void merge_p1(Codebooks& k, const CodebookSizes& first, const LowerSums& s, doub
       if (e >= p1_first) w[e - p1_first] += ps * ps * s.lum_w[(q - p2_first) * na + a];
     }
   const std::vector<float> rows(k.p1.data().begin() + ptrdiff_t(p1_first * nb), k.p1.data().end());
-  redirect(k.p2_index, p2_first, 0, na, p1_first, leaders_of(rows, nb, w, radius));
+  redirect(k.p2_index, p2_first, 0, na, p1_first, leaders_of(rows, nb, w, radius, budget));
 }
 
 // Added P2 rows merged by their decoded slices (a row's weight is S^2 summed over the planes that
 // use it, the same for every alpha); their sums move to the leader, M rows follow.
-void merge_p2(Codebooks& k, const CodebookSizes& first, LowerSums& s, double radius) {
+void merge_p2(Codebooks& k, const CodebookSizes& first, LowerSums& s, double radius, double budget) {
   const size_t nb = k.grid.n_beta, na = k.grid.n_alpha, p2_first = first[CodebookId::P2];
   const size_t n = k.p2_index.rows() - p2_first;
   std::vector<float> slices(n * na * nb);
@@ -255,7 +276,7 @@ void merge_p2(Codebooks& k, const CodebookSizes& first, LowerSums& s, double rad
       for (size_t b = 0; b < nb; ++b) slices[(q * na + a) * nb + b] = k.p2_scale.at(p2_first + q, a) * d[b];
     }
   }
-  const std::vector<uint32_t> leader = leaders_of(slices, na * nb, w, radius);
+  const std::vector<uint32_t> leader = leaders_of(slices, na * nb, w, radius, budget);
   move_sums(leader, na * nb, s.lum);
   move_sums(leader, na, s.lum_w);
   redirect(k.m, first[CodebookId::M], 0, 1, p2_first, leader);
@@ -272,7 +293,7 @@ void i1_values(const Codebooks& k, uint32_t r, float* out) {
 
 // Added I1 rows merged by their decoded chroma (weight: w summed over their uses, the same for every
 // beta); their sums move to the leader, I2 rows follow.
-void merge_i1(Codebooks& k, const CodebookSizes& first, LowerSums& s, double radius) {
+void merge_i1(Codebooks& k, const CodebookSizes& first, LowerSums& s, double radius, double budget) {
   const size_t nb = k.grid.n_beta, i1_first = first[CodebookId::I1], n = k.i1.rows() - i1_first;
   std::vector<float> rows(n * 2 * nb);
   std::vector<double> w(n);
@@ -280,7 +301,7 @@ void merge_i1(Codebooks& k, const CodebookSizes& first, LowerSums& s, double rad
     w[r] = s.chroma_w[r * nb];
     i1_values(k, uint32_t(i1_first + r), &rows[r * 2 * nb]);
   }
-  const std::vector<uint32_t> leader = leaders_of(rows, 2 * nb, w, radius);
+  const std::vector<uint32_t> leader = leaders_of(rows, 2 * nb, w, radius, budget);
   move_sums(leader, 2 * nb, s.chroma);
   move_sums(leader, nb, s.chroma_w);
   redirect(k.i2, first[CodebookId::I2], 0, k.i2.cols(), i1_first, leader);
@@ -288,26 +309,26 @@ void merge_i1(Codebooks& k, const CodebookSizes& first, LowerSums& s, double rad
 
 // Added I2 rows merged by their decoded chroma slices; M rows follow. Last of the chroma updates:
 // the sums are kept per I1 row, so a merged I2 row's share cannot be moved.
-void merge_i2(Codebooks& k, const CodebookSizes& first, const LowerSums& s, double radius) {
+void merge_i2(Codebooks& k, const CodebookSizes& first, const LowerSums& s, double radius, double budget) {
   const size_t nb = k.grid.n_beta, na = k.grid.n_alpha, i2_first = first[CodebookId::I2], n = k.i2.rows() - i2_first;
   std::vector<float> rows(n * na * 2 * nb);
   for (size_t r = 0; r < n; ++r)
     for (size_t a = 0; a < na; ++a) i1_values(k, k.i2.at(i2_first + r, a), &rows[(r * na + a) * 2 * nb]);
-  const std::vector<uint32_t> leader = leaders_of(rows, na * 2 * nb, s.i2_w, radius);
+  const std::vector<uint32_t> leader = leaders_of(rows, na * 2 * nb, s.i2_w, radius, budget);
   redirect(k.m, first[CodebookId::M], 1, 2, i2_first, leader);
   unify_m(k, first);
 }
 
 // P1 rows at their least-squares centre, then P2 scales refitted, alternately. A density is kept
 // summing to 1 by moving its sum into the P2 scales that use it (the product is what decodes).
-void update_luminance(Codebooks& k, const CodebookSizes& first, LowerSums& s, const RefineMerge& merge) {
+void update_luminance(Codebooks& k, const CodebookSizes& first, LowerSums& s, const RefineMerge& merge, double budget) {
   const size_t nb = k.grid.n_beta, na = k.grid.n_alpha;
   const size_t p1_first = first[CodebookId::P1], p2_first = first[CodebookId::P2];
   const size_t p2_rows = k.p2_index.rows();
   std::vector<double> num, den;
   for (int round = 0; round < kLuminanceRounds; ++round) {
-    if (round == 1 && merge.p1 > 0) merge_p1(k, first, s, merge.p1);
-    if (round == 2 && merge.p2 > 0) merge_p2(k, first, s, merge.p2);
+    if (round == 1 && merge.p1 > 0) merge_p1(k, first, s, merge.p1, budget);
+    if (round == 2 && merge.p2 > 0) merge_p2(k, first, s, merge.p2, budget);
     num.assign((k.p1.rows() - p1_first) * nb, 0.0);
     den.assign(k.p1.rows() - p1_first, 0.0);
     for (size_t q = p2_first; q < p2_rows; ++q)
@@ -350,11 +371,11 @@ void update_luminance(Codebooks& k, const CodebookSizes& first, LowerSums& s, co
 
 // C entries at the centre of the chroma that reaches them, then every added I1 row's colour the
 // nearest entry to what reaches it (all of C: published entries are fine to point at).
-void update_chroma(Codebooks& k, const CodebookSizes& first, LowerSums& s, const RefineMerge& merge) {
+void update_chroma(Codebooks& k, const CodebookSizes& first, LowerSums& s, const RefineMerge& merge, double budget) {
   const size_t nb = k.grid.n_beta, c_first = first[CodebookId::C], i1_first = first[CodebookId::I1];
   const size_t i1_rows = k.i1.rows(), c_rows = k.c.rows();
   for (int round = 0; round < kChromaRounds; ++round) {
-    if (round == 1 && merge.i1 > 0) merge_i1(k, first, s, merge.i1);
+    if (round == 1 && merge.i1 > 0) merge_i1(k, first, s, merge.i1, budget);
     std::vector<double> num(2 * (c_rows - c_first), 0.0), den(c_rows - c_first, 0.0);
     for (size_t r = i1_first; r < i1_rows; ++r)
       for (size_t b = 0; b < nb; ++b) {
@@ -530,10 +551,12 @@ RefineStep refine_step(Codebooks& books, const CodebookSizes& first, Dynamic dyn
   if (assignment.ids.empty()) return step;
   tile = std::max<size_t>(tile, 1);
   LowerSums lower;
-  step.mse_before = lower_sums(books, first, dyn, assignment, source, tile, lower) / values;
-  update_luminance(books, first, lower, merge);
-  update_chroma(books, first, lower, merge);
-  if (merge.i2 > 0) merge_i2(books, first, lower, merge.i2);
+  const double error = lower_sums(books, first, dyn, assignment, source, tile, lower);
+  step.mse_before = error / values;
+  const double budget = merge.budget * error;  // per kind of row merged
+  update_luminance(books, first, lower, merge, budget);
+  update_chroma(books, first, lower, merge, budget);
+  if (merge.i2 > 0) merge_i2(books, first, lower, merge.i2, budget);
   PlaneSums planes;
   plane_sums(books, dyn, assignment, source, tile, planes);
   update_scales(books, first, assignment, planes);

@@ -33,6 +33,11 @@ struct RefineMerge {
   double p2 = 0;  // P2 slices (Euclidean over n_alpha x n_beta luminance values)
   double i1 = 0;  // I1 rows (over their n_beta decoded (a, b) pairs)
   double i2 = 0;  // I2 slices (over n_alpha x n_beta decoded (a, b) pairs)
+  // The error the merges of one kind of row may add together, as a fraction of the texels'
+  // squared error before the step; the cheapest merges are kept. The radii say which rows are
+  // alike; this says how much of the material's own error a merge may cost, so a material coded
+  // near its noise floor merges less than one coded coarsely.
+  double budget = 1e300;
 };
 
 // The "refine" section of configs/pipeline.json.
