@@ -28,6 +28,12 @@ class RangeNotSatisfiableError : public Error {
   explicit RangeNotSatisfiableError(const std::string& m) : Error("range_not_satisfiable", m) {}
 };
 
+// A request whose headers or body did not arrive in time (http_connections.h): 408.
+class RequestTimeoutError : public Error {
+ public:
+  explicit RequestTimeoutError(const std::string& m) : Error("request_timeout", m) {}
+};
+
 // A body larger than the configured limit: 413.
 class TooLargeError : public InputError {
  public:

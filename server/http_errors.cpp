@@ -13,7 +13,8 @@ namespace {
 // The codes with a status of their own; any other InputError is a 400, any other Error a 500.
 constexpr std::pair<std::string_view, int> kStatusOfCode[] = {
     {"unauthorized", 401}, {"forbidden", 403}, {"not_found", 404},
-    {"conflict", 409},     {"cancelled", 409}, {"too_large", 413},
+    {"request_timeout", 408},                  {"conflict", 409},
+    {"cancelled", 409},    {"too_large", 413},
     {"range_not_satisfiable", 416},            {"unavailable", 503}};
 
 // The statuses that httplib sends by itself, named as the table above names them.

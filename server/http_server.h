@@ -7,6 +7,7 @@
 #include <string>
 #include <thread>
 
+#include "server/http_connections.h"
 #include "server/service.h"
 
 namespace httplib {
@@ -18,7 +19,7 @@ namespace btfvq::server {
 struct HttpOptions {
   std::string token;                    // empty: no authentication
   uint64_t max_request_bytes = 1 << 20;  // JSON bodies (POST /v1/jobs)
-  int threads = 16;                     // concurrent connections (event streams hold one each)
+  ConnectionLimits connections;         // open connections and their deadlines (event streams hold one each)
 };
 
 class HttpServer {

@@ -18,12 +18,8 @@ using httplib::Request;
 using httplib::Response;
 
 HttpServer::HttpServer(Service& service, HttpOptions options)
-    : service_(service), options_(std::move(options)), server_(std::make_unique<httplib::Server>()) {
-  const int threads = options_.threads;
-  server_->new_task_queue = [threads] { return new httplib::ThreadPool(size_t(threads)); };
+    : service_(service), options_(std::move(options)), server_(make_limited_server(options_.connections)) {
   server_->set_payload_max_length(size_t(service_.config().max_upload_bytes) + 1);
-  server_->set_read_timeout(60);
-  server_->set_write_timeout(60);
   install_handlers();
   install_routes();
 }

@@ -29,7 +29,14 @@ ServerConfig load_server_config(const ServerFlags& flags) {
   c.service.max_upload_bytes = uint64_t(d.number("max_upload_bytes", 1, 1e15));
   c.service.max_expanded_bytes = uint64_t(d.number("max_expanded_bytes", 1, 1e16));
   c.http.max_request_bytes = uint64_t(d.number("max_request_bytes", 1024, 1 << 30));
-  c.http.threads = d.integer("http_threads", 2, 1024);
+  auto& k = c.http.connections;
+  // The Debian cpp-httplib waits with select(), which cannot watch a socket numbered 1024 or more.
+  k.max_connections = d.integer("http_max_connections", 2, 900);
+  k.max_connections_per_client = d.integer("http_max_connections_per_client", 1, k.max_connections);
+  k.header_timeout_s = d.integer("http_header_timeout_s", 1, 3600);
+  k.body_min_bytes_per_s = d.integer("http_body_min_bytes_per_s", 1, 1 << 30);
+  k.retry_after_s = d.integer("http_retry_after_s", 1, 3600);
+  k.idle_timeout_s = d.integer("http_idle_timeout_s", 1, 3600);
   c.http.token = d.string("token");
   c.log_level = d.string("log_level");
   d.check_unused();
