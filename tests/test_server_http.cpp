@@ -76,6 +76,7 @@ TEST_CASE("every error reaches the client with the status and code of docs/api.m
       {e(server::UnauthorizedError("x")), 401, "unauthorized"},
       {e(server::ForbiddenError("x")), 403, "forbidden"},
       {e(NotFoundError("x")), 404, "not_found"},
+      {e(server::RequestTimeoutError("x")), 408, "request_timeout"},
       {e(server::ConflictError("x")), 409, "conflict"},
       {e(CancelledError("x")), 409, "cancelled"},
       {e(server::TooLargeError("x")), 413, "too_large"},
