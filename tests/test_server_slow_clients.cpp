@@ -245,3 +245,20 @@ TEST_CASE("an upload body slower than the minimum rate is cut off with 408, and 
   CHECK(json::parse(r.substr(r.find("\r\n\r\n") + 4))["error"]["code"] == "request_timeout");
   CHECK(t.client().Get("/v1/uploads/trickled")->status == 404);
 }
+
+TEST_CASE("the server stops at once while stalled connections are open") {
+  TestServer t("slow-stop", {}, shipped());
+  Connections stalled;
+  for (int i = 0; i < 20; ++i) {
+    stalled.fds.push_back(connect_from("127.0.6.1", t.port));
+    send_all(stalled.fds.back(), kHalfHeader);
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  const auto start = Clock::now();
+  t.http->stop();
+  MESSAGE("stopped in " << seconds_since(start) << " s");
+  CHECK(seconds_since(start) < 1.0);
+  size_t closed = 0;
+  for (int fd : stalled.fds) closed += read_until_close(fd, 1).empty() && answered(fd);
+  CHECK(closed == stalled.fds.size());  // closed without an answer: a 408 is for clients that were late
+}
