@@ -146,8 +146,9 @@ std::string raw_response(const Error& error, const std::string& extra_headers) {
 // client may take is bounded, not only the time between two bytes.
 class DeadlineStream final : public httplib::Stream {
  public:
-  DeadlineStream(int fd, const ConnectionLimits& limits, const std::atomic<socket_t>& listener)
-      : fd_(fd), limits_(limits), listener_(listener), accepted_(Clock::now()) {}
+  DeadlineStream(int fd, const ConnectionLimits& limits, const std::atomic<socket_t>& listener,
+                 ConnectionCounts& counts)
+      : fd_(fd), limits_(limits), listener_(listener), counts_(counts), accepted_(Clock::now()) {}
 
   // Waits for the first byte of the next request; false when the client closed, stayed silent
   // past its deadline or the server stops.
@@ -241,6 +242,7 @@ class DeadlineStream final : public httplib::Stream {
   void time_out() {
     if (dead_ || stopping()) return;
     dead_ = true;
+    ++counts_.timed_out;
     if (wrote_) return;
     const std::string what = in_body_ ? "the request body arrived slower than " +
                                             std::to_string(limits_.body_min_bytes_per_s) + " bytes/s"
@@ -253,6 +255,7 @@ class DeadlineStream final : public httplib::Stream {
   const int fd_;
   const ConnectionLimits& limits_;
   const std::atomic<socket_t>& listener_;  // closed by Server::stop()
+  ConnectionCounts& counts_;
   const Clock::time_point accepted_;
   Clock::time_point deadline_, body_start_;
   bool in_body_ = false, wrote_ = false, dead_ = false;
@@ -264,7 +267,8 @@ class DeadlineStream final : public httplib::Stream {
 
 class LimitedServer final : public httplib::Server {
  public:
-  explicit LimitedServer(const ConnectionLimits& limits) : limits_(limits), gate_(limits) {
+  LimitedServer(const ConnectionLimits& limits, ConnectionCounts& counts)
+      : limits_(limits), counts_(counts), gate_(limits) {
     const size_t threads = size_t(limits.max_connections) + kSpareThreads;
     // httplib calls this once per listen, after binding: the moment to widen its listen backlog of
     // 5, which drops the SYNs of a burst of connections and delays every client behind them by the
@@ -285,9 +289,12 @@ class LimitedServer final : public httplib::Server {
     const std::string address = peer_address(sock);
     bool ok = false;
     if (const auto refusal = gate_.admit(address)) {
+      ++counts_.refused;
       refuse(sock, *refusal);
     } else {
+      ++counts_.open;
       ok = serve(sock);
+      --counts_.open;
       gate_.release(address);
     }
     ::shutdown(sock, SHUT_RDWR);
@@ -296,7 +303,7 @@ class LimitedServer final : public httplib::Server {
   }
 
   bool serve(int sock) {
-    DeadlineStream strm(sock, limits_, svr_sock_);
+    DeadlineStream strm(sock, limits_, svr_sock_, counts_);
     bool ok = false;
     for (size_t left = keep_alive_max_count_; left > 0 && svr_sock_ != INVALID_SOCKET && strm.next_request(); --left) {
       bool closed = false;
@@ -321,13 +328,14 @@ class LimitedServer final : public httplib::Server {
   }
 
   const ConnectionLimits limits_;
+  ConnectionCounts& counts_;
   ConnectionGate gate_;
 };
 
 }  // namespace
 
-std::unique_ptr<httplib::Server> make_limited_server(const ConnectionLimits& limits) {
-  return std::make_unique<LimitedServer>(limits);
+std::unique_ptr<httplib::Server> make_limited_server(const ConnectionLimits& limits, ConnectionCounts& counts) {
+  return std::make_unique<LimitedServer>(limits, counts);
 }
 
 }  // namespace btfvq::server

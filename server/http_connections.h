@@ -6,6 +6,8 @@
 // its body at a minimum average rate, and the connections open at once are capped per client
 // address and in total (503 with Retry-After beyond), so that the bounded pool of threads is never
 // all held by clients that do not send.
+#include <atomic>
+#include <cstdint>
 #include <memory>
 
 namespace httplib {
@@ -24,8 +26,14 @@ struct ConnectionLimits {
   int read_timeout_s = 60;              // any one read or write
 };
 
+// What the connections did since the start, for /metrics: an attack shows as refusals and timeouts.
+struct ConnectionCounts {
+  std::atomic<int64_t> open{0};
+  std::atomic<uint64_t> refused{0}, timed_out{0};
+};
+
 // A cpp-httplib server whose task queue is the one pool of threads (at most max_connections plus a
-// few that answer the 503s) and whose connections keep to `limits`.
-std::unique_ptr<httplib::Server> make_limited_server(const ConnectionLimits& limits);
+// few that answer the 503s) and whose connections keep to `limits`. `counts` must outlive it.
+std::unique_ptr<httplib::Server> make_limited_server(const ConnectionLimits& limits, ConnectionCounts& counts);
 
 }  // namespace btfvq::server

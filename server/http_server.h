@@ -39,6 +39,7 @@ class HttpServer {
   void install_routes();
   Service& service_;
   HttpOptions options_;
+  ConnectionCounts connections_;  // before server_, which counts into it
   std::unique_ptr<httplib::Server> server_;
   std::thread thread_;
   std::atomic<bool> stopping_{false};

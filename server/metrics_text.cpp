@@ -2,6 +2,8 @@
 
 #include <sstream>
 
+#include "server/http_connections.h"
+
 namespace btfvq::server {
 
 std::string metrics_text(const MetricsSnapshot& m) {
@@ -23,6 +25,19 @@ std::string metrics_text(const MetricsSnapshot& m) {
   out << "# HELP btfvq_stage_seconds_total Time spent by jobs in each stage (phase1/2/3, ...).\n"
       << "# TYPE btfvq_stage_seconds_total counter\n";
   for (const auto& [stage, s] : m.stage_seconds) out << "btfvq_stage_seconds_total{stage=\"" << stage << "\"} " << s << "\n";
+  return out.str();
+}
+
+std::string connection_metrics_text(const ConnectionCounts& c) {
+  std::ostringstream out;
+  out << "# HELP btfvq_http_connections Connections open now.\n# TYPE btfvq_http_connections gauge\n"
+      << "btfvq_http_connections " << c.open << "\n";
+  out << "# HELP btfvq_http_connections_refused_total Connections answered 503 beyond a connection cap.\n"
+      << "# TYPE btfvq_http_connections_refused_total counter\n"
+      << "btfvq_http_connections_refused_total " << c.refused << "\n";
+  out << "# HELP btfvq_http_requests_timed_out_total Requests whose headers or body did not arrive in time.\n"
+      << "# TYPE btfvq_http_requests_timed_out_total counter\n"
+      << "btfvq_http_requests_timed_out_total " << c.timed_out << "\n";
   return out.str();
 }
 

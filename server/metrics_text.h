@@ -18,4 +18,7 @@ struct MetricsSnapshot {
 
 std::string metrics_text(const MetricsSnapshot& m);
 
+struct ConnectionCounts;  // http_connections.h
+std::string connection_metrics_text(const ConnectionCounts& c);
+
 }  // namespace btfvq::server

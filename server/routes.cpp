@@ -10,6 +10,7 @@
 #include "server/http_requests.h"
 #include "server/http_responses.h"
 #include "server/http_server.h"
+#include "server/metrics_text.h"
 
 namespace btfvq::server {
 using nlohmann::json;
@@ -18,7 +19,7 @@ using httplib::Request;
 using httplib::Response;
 
 HttpServer::HttpServer(Service& service, HttpOptions options)
-    : service_(service), options_(std::move(options)), server_(make_limited_server(options_.connections)) {
+    : service_(service), options_(std::move(options)), server_(make_limited_server(options_.connections, connections_)) {
   server_->set_payload_max_length(size_t(service_.config().max_upload_bytes) + 1);
   install_handlers();
   install_routes();
@@ -74,7 +75,9 @@ void HttpServer::install_routes() {
   auto healthz = [](const Request&, Response& res) { send_json(res, {{"status", "ok"}}); };
   s.Get("/healthz", healthz);
   s.Get("/v1/healthz", healthz);
-  auto metrics = [&svc](const Request&, Response& res) { res.set_content(svc.metrics(), "text/plain; version=0.0.4"); };
+  auto metrics = [this, &svc](const Request&, Response& res) {
+    res.set_content(svc.metrics() + connection_metrics_text(connections_), "text/plain; version=0.0.4");
+  };
   s.Get("/metrics", metrics);
   s.Get("/v1/metrics", metrics);
 

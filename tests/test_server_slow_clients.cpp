@@ -182,11 +182,17 @@ TEST_CASE("beyond the per-client and the total cap a connection is answered 503 
   size_t still_open = 0;
   for (int fd : held.fds) still_open += !answered(fd);
   CHECK(still_open == size_t(k.max_connections));
-
-  // A slot that frees up is open to the next client again.
+  // Counted for /metrics; the one slot that frees up below lets the scrape itself in.
   ::close(held.fds.back());
   held.fds.pop_back();
   std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  const auto scrape = t.client().Get("/metrics");
+  REQUIRE(scrape);
+  CHECK(metric(scrape->body, "btfvq_http_connections_refused_total") == 2);
+  CHECK(metric(scrape->body, "btfvq_http_connections") == k.max_connections);  // the held ones and the scrape
+
+  // Once the scrape is gone, its slot is open to the next client again.
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
   check_served("127.0.4.1");
 }
 
@@ -214,6 +220,7 @@ TEST_CASE("a client that trickles a header byte per second is cut off at the hea
   CAPTURE(r);
   CHECK(r.rfind("HTTP/1.1 408 ", 0) == 0);
   CHECK(json::parse(r.substr(r.find("\r\n\r\n") + 4))["error"]["code"] == "request_timeout");
+  CHECK(metric(t.client().Get("/metrics")->body, "btfvq_http_requests_timed_out_total") == 1);
 }
 
 TEST_CASE("an upload body slower than the minimum rate is cut off with 408, and nothing of it is kept") {
