@@ -3,10 +3,12 @@
 #include <arpa/inet.h>
 #include <netinet/in.h>
 #include <poll.h>
+#include <sys/select.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
 #include <httplib.h>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <atomic>
@@ -16,6 +18,8 @@
 #include <map>
 #include <mutex>
 #include <optional>
+#include <string_view>
+#include <system_error>
 #include <thread>
 #include <vector>
 
@@ -41,7 +45,14 @@ class ConnectionPool final : public httplib::TaskQueue {
   void enqueue(std::function<void()> fn) override {
     std::lock_guard lock(mutex_);
     jobs_.push_back(std::move(fn));
-    if (jobs_.size() > idle_ && threads_.size() < max_threads_) threads_.emplace_back([this] { work(); });
+    if (jobs_.size() > idle_ && threads_.size() < max_threads_) {
+      try {
+        threads_.emplace_back([this] { work(); });
+      } catch (const std::system_error& e) {
+        // Out of threads (ulimit, memory): the connection waits for one of the threads there are.
+        spdlog::warn("http: cannot start a thread beyond {}: {}", threads_.size(), e.what());
+      }
+    }
     cv_.notify_one();
   }
 
@@ -191,7 +202,8 @@ class DeadlineStream final : public httplib::Stream {
   ssize_t write(const char* ptr, size_t size) override {
     if (!is_writable()) return -1;
     const ssize_t n = ::send(fd_, ptr, size, MSG_NOSIGNAL);
-    if (n > 0) wrote_ = true;
+    // An interim "100 Continue" is not the answer: a body that is late after it still gets its 408.
+    if (n > 0 && std::string_view(ptr, std::min<size_t>(size, 10)) != "HTTP/1.1 1") wrote_ = true;
     return n;
   }
 
@@ -279,7 +291,7 @@ class LimitedServer final : public httplib::Server {
     };
     set_read_timeout(limits.read_timeout_s);
     set_write_timeout(limits.read_timeout_s);
-    set_keep_alive_timeout(limits.idle_timeout_s);
+    set_keep_alive_timeout(limits.idle_timeout_s);  // what the Keep-Alive header announces
   }
 
  private:
@@ -288,7 +300,10 @@ class LimitedServer final : public httplib::Server {
   bool process_and_close_socket(socket_t sock) override {
     const std::string address = peer_address(sock);
     bool ok = false;
-    if (const auto refusal = gate_.admit(address)) {
+    // httplib's select() cannot watch this socket, and its request parser would answer it a 500.
+    const auto refusal = sock >= FD_SETSIZE ? std::optional<std::string>("the server has too many sockets open")
+                                            : gate_.admit(address);
+    if (refusal) {
       ++counts_.refused;
       refuse(sock, *refusal);
     } else {

@@ -4,7 +4,9 @@
 
 #include <arpa/inet.h>
 #include <netinet/in.h>
+#include <fcntl.h>
 #include <poll.h>
+#include <sys/resource.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
@@ -20,8 +22,22 @@ server::HttpOptions shipped() { return server::load_server_config({}).http; }
 
 double seconds_since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
 
+// The test's own sockets live at 1024 and above, so that the server's sockets in this process keep
+// the numbers below 1024 that they would have in a process of their own (httplib's select()
+// cannot watch the others, and the server refuses them).
+constexpr int kClientFds = 1024;
+const bool room_for_client_fds = [] {
+  rlimit r{};
+  getrlimit(RLIMIT_NOFILE, &r);
+  r.rlim_cur = std::max<rlim_t>(r.rlim_cur, std::min<rlim_t>(r.rlim_max, 4096));
+  setrlimit(RLIMIT_NOFILE, &r);
+  getrlimit(RLIMIT_NOFILE, &r);
+  return r.rlim_cur >= kClientFds + 1024;
+}();
+
 // A connection from `source` (any 127.x.y.z: each is an address of its own to the server).
 int connect_from(const std::string& source, int port) {
+  REQUIRE_MESSAGE(room_for_client_fds, "the open-file limit must allow 2048 sockets");
   const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
   REQUIRE(fd >= 0);
   sockaddr_in from{};
@@ -33,7 +49,10 @@ int connect_from(const std::string& source, int port) {
   to.sin_port = htons(uint16_t(port));
   to.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
   REQUIRE(::connect(fd, reinterpret_cast<sockaddr*>(&to), sizeof to) == 0);
-  return fd;
+  const int high = fcntl(fd, F_DUPFD_CLOEXEC, kClientFds);
+  REQUIRE(high >= kClientFds);
+  ::close(fd);
+  return high;
 }
 
 void send_all(int fd, const std::string& bytes) {
