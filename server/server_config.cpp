@@ -30,6 +30,11 @@ ServerConfig load_server_config(const ServerFlags& flags) {
   c.service.max_expanded_bytes = uint64_t(d.number("max_expanded_bytes", 1, 1e16));
   c.http.max_request_bytes = uint64_t(d.number("max_request_bytes", 1024, 1 << 30));
   auto& k = c.http.connections;
+  // A config written before the connection limits names the old fixed pool: say what replaced it
+  // rather than only that the key is unknown.
+  if (d.has("http_threads"))
+    throw ConfigError(d.origin() + ": http_threads is no longer a setting: the pool of HTTP threads grows on demand "
+                      "up to http_max_connections (docs/api.md \"Connections\"); remove the key");
   // The Debian cpp-httplib waits with select(), which cannot watch a socket numbered 1024 or more.
   k.max_connections = d.integer("http_max_connections", 2, 900);
   k.max_connections_per_client = d.integer("http_max_connections_per_client", 1, k.max_connections);

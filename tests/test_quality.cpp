@@ -41,6 +41,7 @@ TEST_CASE("higher quality: every threshold lower or equal, the top ones strictly
     CHECK(double(hi.json()["thresholds"]["ssim"]["p4"]) < double(lo.json()["thresholds"]["ssim"]["p4"]));
     CHECK(double(hi.json()["schedule"]["compose_threshold"]) <= double(lo.json()["schedule"]["compose_threshold"]));
     CHECK(double(hi.json()["schedule"]["compose_gain"]) <= double(lo.json()["schedule"]["compose_gain"]));
+    CHECK(double(hi.json()["refine"]["merge_budget"]) < double(lo.json()["refine"]["merge_budget"]));
   }
   // The ends of the scale: three times looser and three times tighter than the default.
   const double p4 = Thresholds::defaults().p4;

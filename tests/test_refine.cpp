@@ -46,6 +46,20 @@ Assignment assignment_of(const ScheduleResult& r) {
   return as;
 }
 
+// The 16 x 16 material of a schedule result, re-assigned as `as` says, with its unreachable rows
+// reclaimed: what a compression would write after the refinement.
+Database reclaimed(const Codebooks& k, const ScheduleResult& r, const Assignment& as) {
+  Material m;
+  m.name = "m";
+  m.width = m.height = 16;
+  m.p6_index.assign(r.p6_index.begin(), r.p6_index.end());
+  for (size_t i = 0; i < as.ids.size(); ++i) m.p6_index[as.ids[i]] = int32_t(as.p4[i]);
+  m.p6_scale = as.scale;
+  Database db{k, {m}};
+  reclaim_unreachable(db);
+  return db;
+}
+
 }  // namespace
 
 TEST_CASE("a refinement step moves only the added rows, lowers the error, and reports the error the decoder makes") {
@@ -121,14 +135,7 @@ TEST_CASE("merging: near rows become one, more with a larger radius, and the err
     Assignment as = assignment_of(r);
     const RefineStep step = refine_step(k, {}, Dynamic::LDR, as, mat.source(), 32, {shipped.p1 * f, shipped.p2 * f});
     CHECK(step.mse_after == doctest::Approx(measured_mse(k, mat, as)).epsilon(1e-4));
-    Material m;
-    m.name = "m";
-    m.width = m.height = 16;
-    m.p6_index.assign(r.p6_index.begin(), r.p6_index.end());
-    for (size_t i = 0; i < as.ids.size(); ++i) m.p6_index[as.ids[i]] = int32_t(as.p4[i]);
-    m.p6_scale = as.scale;
-    Database db{k, {m}};
-    reclaim_unreachable(db);
+    const Database db = reclaimed(k, r, as);
     CHECK_NOTHROW(db.validate());
     const size_t p1 = db.codebooks.p1.rows(), p2 = db.codebooks.p2_index.rows();
     if (f == 0) {
@@ -159,14 +166,7 @@ TEST_CASE("merging within a budget: the cheapest merges are kept, fewer as the b
     RefineMerge m{shipped.p1 * 8, shipped.p2 * 8, shipped.i1 * 8, shipped.i2 * 8};
     m.budget = budget;
     *step = refine_step(k, {}, Dynamic::LDR, as, mat.source(), 32, m);
-    Material mt;
-    mt.name = "m";
-    mt.width = mt.height = 16;
-    mt.p6_index.assign(r.p6_index.begin(), r.p6_index.end());
-    for (size_t i = 0; i < as.ids.size(); ++i) mt.p6_index[as.ids[i]] = int32_t(as.p4[i]);
-    mt.p6_scale = as.scale;
-    Database db{k, {mt}};
-    reclaim_unreachable(db);
+    const Database db = reclaimed(k, r, as);
     REQUIRE_NOTHROW(db.validate());
     return db.codebooks.p1.rows() + db.codebooks.p2_index.rows() + db.codebooks.i1.rows() + db.codebooks.i2.rows();
   };

@@ -100,6 +100,18 @@ struct Connections {
   }
 };
 
+// Sends `chunk` about once a second until the server answers (then reads the answer to the close)
+// or `seconds` pass; returns the answer, empty if none came.
+std::string trickle_until_answer(int fd, const std::string& chunk, double seconds) {
+  const auto start = Clock::now();
+  while (seconds_since(start) < seconds) {
+    if (::send(fd, chunk.data(), chunk.size(), MSG_NOSIGNAL) != ssize_t(chunk.size())) break;
+    pollfd p{fd, POLLIN, 0};
+    if (::poll(&p, 1, 1000) > 0) return read_until_close(fd, 2);
+  }
+  return {};
+}
+
 }  // namespace
 
 TEST_CASE("the shipped connection limits are the defaults the server is built with") {
@@ -112,6 +124,20 @@ TEST_CASE("the shipped connection limits are the defaults the server is built wi
   CHECK(k.retry_after_s == built.retry_after_s);
   CHECK(k.idle_timeout_s == built.idle_timeout_s);
   CHECK(k.max_connections >= 300);  // "a few hundred idle connections"
+}
+
+TEST_CASE("a config that still sets the old fixed pool (http_threads) is refused with a message naming its replacement") {
+  const std::filesystem::path file = std::filesystem::temp_directory_path() / "btfvq_old_http_threads.json";
+  std::ofstream(file) << R"({"http_threads": 16})";
+  server::ServerFlags flags;
+  flags.config_file = file.string();
+  try {
+    server::load_server_config(flags);
+    FAIL("http_threads was accepted");
+  } catch (const ConfigError& e) {
+    CHECK(std::string(e.what()).find("http_max_connections") != std::string::npos);
+  }
+  std::filesystem::remove(file);
 }
 
 TEST_CASE("200 connections stalled in their headers leave /healthz and downloads answering within 1 s") {
@@ -222,15 +248,7 @@ TEST_CASE("a client that trickles a header byte per second is cut off at the hea
   const int fd = connect_from("127.0.5.1", t.port);
   const auto start = Clock::now();
   send_all(fd, "GET /healthz HTTP/1.1\r\n");
-  std::string r;
-  while (seconds_since(start) < deadline + 5) {
-    if (::send(fd, "a", 1, MSG_NOSIGNAL) != 1) break;
-    pollfd p{fd, POLLIN, 0};
-    if (::poll(&p, 1, 1000) > 0) {
-      r = read_until_close(fd, 2);
-      break;
-    }
-  }
+  const std::string r = trickle_until_answer(fd, "a", deadline + 5);
   const double cut = seconds_since(start);
   ::close(fd);
   MESSAGE("cut off after " << cut << " s");
@@ -252,15 +270,7 @@ TEST_CASE("an upload body slower than the minimum rate is cut off with 408, and 
   const auto start = Clock::now();
   // 1 KiB a second: the body's deadline, grace + bytes / rate, is passed after grace * 16/15 s.
   const double expected = k.header_timeout_s / (1.0 - 1024.0 / k.body_min_bytes_per_s);
-  std::string r;
-  while (seconds_since(start) < expected + 5) {
-    if (::send(fd, std::string(1024, 'b').data(), 1024, MSG_NOSIGNAL) != 1024) break;
-    pollfd p{fd, POLLIN, 0};
-    if (::poll(&p, 1, 1000) > 0) {
-      r = read_until_close(fd, 2);
-      break;
-    }
-  }
+  const std::string r = trickle_until_answer(fd, std::string(1024, 'b'), expected + 5);
   const double cut = seconds_since(start);
   ::close(fd);
   MESSAGE("body cut off after " << cut << " s (expected " << expected << " s)");

@@ -33,6 +33,8 @@ nlohmann::json quality_settings(double q) {
   const double compose = shipped["schedule"]["compose_threshold"].get<double>();
   out["schedule"]["compose_threshold"] = std::min(2.0, compose * f);
   out["schedule"]["compose_gain"] = shipped["schedule"]["compose_gain"].get<double>() * f;
+  // The share of the material's error the refinement's merges may add: a higher quality merges less.
+  out["refine"]["merge_budget"] = shipped["refine"]["merge_budget"].get<double>() * f;
   return out;
 }
 
