@@ -46,6 +46,23 @@ Assignment assignment_of(const ScheduleResult& r) {
   return as;
 }
 
+// A 16 x 16 material grown with tight thresholds, so that the growth stores many rows close to
+// each other: what the merges are for.
+struct TightGrowth {
+  SyntheticMaterial mat{16, 16};
+  Codebooks grown;
+  ScheduleResult r;
+  TightGrowth() : mat(with_classes(4)), grown(mat.grid) {
+    r = run_schedule(grown, Dynamic::LDR, 16, 16, mat.source(), Thresholds::defaults().relaxed(0.2),
+                     SimilaritySettings::defaults(), growing_only());
+  }
+  static SyntheticMaterial with_classes(int n) {
+    SyntheticMaterial m(16, 16);
+    m.classes = n;
+    return m;
+  }
+};
+
 // The 16 x 16 material of a schedule result, re-assigned as `as` says, with its unreachable rows
 // reclaimed: what a compression would write after the refinement.
 Database reclaimed(const Codebooks& k, const ScheduleResult& r, const Assignment& as) {
@@ -118,12 +135,7 @@ TEST_CASE("a refinement step moves only the added rows, lowers the error, and re
 }
 
 TEST_CASE("merging: near rows become one, more with a larger radius, and the error reported is still the decoder's") {
-  SyntheticMaterial mat(16, 16);
-  mat.classes = 4;
-  // Tight thresholds, so that the growth stores many rows close to each other.
-  Codebooks grown(mat.grid);
-  const ScheduleResult r = run_schedule(grown, Dynamic::LDR, 16, 16, mat.source(), Thresholds::defaults().relaxed(0.2),
-                                        SimilaritySettings::defaults(), growing_only());
+  const TightGrowth g;
   const RefineMerge shipped = ScheduleSettings::defaults().refine.merge;
   REQUIRE(shipped.p1 > 0);
   REQUIRE(shipped.p2 > 0);
@@ -131,11 +143,11 @@ TEST_CASE("merging: near rows become one, more with a larger radius, and the err
   double last_mse = 0;
   for (double f : {0.0, 3.0, 8.0}) {
     CAPTURE(f);
-    Codebooks k = grown;
-    Assignment as = assignment_of(r);
-    const RefineStep step = refine_step(k, {}, Dynamic::LDR, as, mat.source(), 32, {shipped.p1 * f, shipped.p2 * f});
-    CHECK(step.mse_after == doctest::Approx(measured_mse(k, mat, as)).epsilon(1e-4));
-    const Database db = reclaimed(k, r, as);
+    Codebooks k = g.grown;
+    Assignment as = assignment_of(g.r);
+    const RefineStep step = refine_step(k, {}, Dynamic::LDR, as, g.mat.source(), 32, {shipped.p1 * f, shipped.p2 * f});
+    CHECK(step.mse_after == doctest::Approx(measured_mse(k, g.mat, as)).epsilon(1e-4));
+    const Database db = reclaimed(k, g.r, as);
     CHECK_NOTHROW(db.validate());
     const size_t p1 = db.codebooks.p1.rows(), p2 = db.codebooks.p2_index.rows();
     if (f == 0) {
@@ -152,11 +164,10 @@ TEST_CASE("merging: near rows become one, more with a larger radius, and the err
 }
 
 TEST_CASE("merging within a budget: the cheapest merges are kept, fewer as the budget shrinks, none at 0 but exact copies") {
-  SyntheticMaterial mat(16, 16);
-  mat.classes = 4;
-  Codebooks grown(mat.grid);
-  const ScheduleResult r = run_schedule(grown, Dynamic::LDR, 16, 16, mat.source(), Thresholds::defaults().relaxed(0.2),
-                                        SimilaritySettings::defaults(), growing_only());
+  const TightGrowth g;
+  const SyntheticMaterial& mat = g.mat;
+  const Codebooks& grown = g.grown;
+  const ScheduleResult& r = g.r;
   const RefineMerge shipped = ScheduleSettings::defaults().refine.merge;
   REQUIRE(shipped.budget > 0);
   REQUIRE(shipped.budget < 1);  // the shipped budget binds somewhere
