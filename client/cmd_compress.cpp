@@ -1,6 +1,9 @@
 // `btfvq compress`: measured samples into a (new or existing) database, with a progress bar per
 // stage. Flags become options for one compress_database() call; this file only draws its progress.
+#include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <memory>
@@ -9,6 +12,7 @@
 
 #include "client/cli.h"
 #include "client/progress_bar.h"
+#include "pipeline/encode/checkpoint.h"
 #include "pipeline/encode/compress.h"
 #include "pipeline/encode/quality.h"
 #include "pipeline/encode/target.h"
@@ -27,11 +31,31 @@ ParameterDictionary config_of(const Args& a) {
   return pipeline_config(overrides, origin);
 }
 
+// A sample file or folder as the checkpoints' fingerprint sees it: where it is, how big, how new.
+std::string identity_of(const std::string& path) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  const fs::path p = fs::absolute(path, ec);
+  uintmax_t bytes = 0;
+  fs::file_time_type newest{};
+  auto add = [&](const fs::directory_entry& e) {
+    if (!e.is_regular_file(ec)) return;
+    bytes += e.file_size(ec);
+    newest = std::max(newest, e.last_write_time(ec));
+  };
+  if (fs::is_directory(p, ec))
+    for (const auto& e : fs::recursive_directory_iterator(p, ec)) add(e);
+  else
+    add(fs::directory_entry(p, ec));
+  return p.string() + " " + std::to_string(bytes) + " " + std::to_string(newest.time_since_epoch().count());
+}
+
 std::vector<MaterialInput> inputs_of(const Args& a) {
   std::vector<MaterialInput> inputs;
   for (const auto& path : a.positional) {
     const std::string name = a.positional.size() == 1 ? a.get_or("name", material_name_of(path)) : material_name_of(path);
-    inputs.push_back({name, "load", [path](const ProgressFn& progress) { return load_sample(path, progress); }});
+    inputs.push_back({name, "load", [path](const ProgressFn& progress) { return load_sample(path, progress); },
+                      identity_of(path)});
   }
   return inputs;
 }
@@ -76,9 +100,10 @@ void print_summary(const std::string& out, const DatabaseSummary& s) {
                 << t["achieved"].get<double>() << (t["reached"].get<bool>() ? "" : " (not reached)") << " at quality "
                 << t["quality"].get<double>() << " after " << t["attempts"].size() << " compression(s)\n";
     }
-    for (const auto& p : r.json["phases"])
+    if (r.json.contains("resumed")) std::cout << "  " << r.material << ": " << r.json["resumed"].get<std::string>() << "\n";
+    for (const auto& p : r.json.value("phases", nlohmann::json::array()))
       std::cout << "  " << r.material << " phase " << p["phase"] << ": " << p["texels"] << " texels, "
-                << p["seconds"].get<double>() << " s, code-books " << p["codebook_sizes"].dump() << "\n";
+                << p["seconds"].get<double>() << " s (CPU " << p.value("cpu_seconds", 0.0) << " s), code-books " << p["codebook_sizes"].dump() << "\n";
   }
 }
 
@@ -105,23 +130,35 @@ int run_compress(const Args& a) {
     if (auto file = a.get("config")) target.overrides = ParameterDictionary::load_file(*file).json();
     options.target = target;
   }
+  if (auto dir = a.get("resume")) {
+    if (options.target) throw InputError("--resume and --target-mssim exclude each other (a target compresses several times)");
+    options.checkpoint_folder = *dir;
+  }
   StageBars bars;
-  options.progress = [&](const CompressProgress& p) { bars(p); };
+  std::atomic<bool> said{false};
+  options.progress = [&](const CompressProgress& p) {
+    if (p.resumed_tile >= 0 && !said.exchange(true)) {
+      std::cerr << "\nresuming " << p.material << " from its checkpoint: " << p.resumed_tile << " phase-3 tile(s) done\n";
+    }
+    bars(p);
+  };
   const DatabaseSummary summary = compress_database(out, inputs_of(a), out, options);
   bars.finish();
+  remove_checkpoints(options.checkpoint_folder);
   print_summary(out, summary);
   if (auto file = a.get("report")) write_report(*file, out, summary);
   return 0;
 }
 
-CommandRegistrar reg({"compress", "compress IN... --db OUT.btfdb [--quality Q | --target-mssim X] [--config F] [--name N] [--report R.json]",
+CommandRegistrar reg({"compress", "compress IN... --db OUT.btfdb [--quality Q | --target-mssim X] [--config F] [--name N] [--report R.json] [--resume DIR]",
                       "compress measured samples (zip or directory) into a database; an existing database gains them",
                       {{"db", "OUT.btfdb", "the database to write (an existing one gains the materials)"},
                        {"quality", "Q", "0..100: every threshold by one rule (default 50, the shipped settings)"},
                        {"target-mssim", "X", "search the quality whose MSSIM (Y, whole sample) reaches X, or 'default' (0.90)"},
                        {"config", "F", "a configs/pipeline.json fragment; its settings win over --quality"},
                        {"name", "N", "the material's name (one input only; default: from the file name)"},
-                       {"report", "R.json", "also write the compress report (counters, seconds) as JSON"}},
+                       {"report", "R.json", "also write the compress report (counters, seconds) as JSON"},
+                       {"resume", "DIR", "work folder for checkpoints: a killed run given the same folder continues from its last phase-3 tile"}},
                       {}, run_compress});
 
 }  // namespace

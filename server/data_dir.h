@@ -3,6 +3,7 @@
 //   <data>/btfvq.sqlite                  jobs, uploads, versions (the Store)
 //   <data>/uploads/<id>.upload           complete uploads
 //   <data>/databases/<name>/v<N>.btfdb   published versions
+//   <data>/work/<job id>/                a running job's checkpoints (pipeline/encode/checkpoint.h)
 // Each file is written under a hidden temporary name beside it (pipeline/util/atomic_file.h), so a
 // file there that the store does not list is a leftover of a crash.
 #include <cstdint>
@@ -20,6 +21,8 @@ class DataDir {
   std::filesystem::path uploads() const { return root_ / "uploads"; }
   std::filesystem::path upload(const std::string& id) const { return uploads() / (id + ".upload"); }
   std::filesystem::path databases() const { return root_ / "databases"; }
+  std::filesystem::path work() const { return root_ / "work"; }
+  std::filesystem::path work(const std::string& job) const { return work() / job; }
   // Relative to the root, as the store records it, so that a data directory can be moved.
   static std::string version(const std::string& database, int64_t n) {
     return (std::filesystem::path("databases") / database / ("v" + std::to_string(n) + ".btfdb")).string();

@@ -43,6 +43,7 @@ struct JobProgress {
   uint64_t texels_total = 0;
   CodebookSizes codebook_sizes;
   std::string material;       // the material being compressed
+  int64_t resumed_tile = -1;  // >= 0: the material continued from a checkpoint after this many phase-3 tiles
 };
 
 // One material that the job added, as recorded in the catalogue (ratios are computed from these).
@@ -61,6 +62,9 @@ struct JobContext {
   // Materials already in the previous version (so an executor can reject name clashes early).
   std::vector<std::string> existing_materials;
   uint64_t max_expanded_bytes = 0;                   // zip-bomb limit for archive inputs
+  // The job's own folder for checkpoints: a job re-queued after a crash continues from what is
+  // there. The queue removes it when the job ends.
+  std::string work_folder;
 };
 
 // Writes a complete database (the previous one, if any, plus the job's materials) to

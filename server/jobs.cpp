@@ -7,6 +7,7 @@
 #include <random>
 
 #include <btfvq/error.h>
+#include "pipeline/encode/checkpoint.h"
 #include "server/errors.h"
 
 namespace btfvq::server {
@@ -25,9 +26,10 @@ std::string random_hex(size_t n) {
 
 }  // namespace
 
-JobQueue::JobQueue(Store& store, Catalogue& catalogue, const JobRequests& requests, Executor executor,
-                   uint64_t max_expanded_bytes)
+JobQueue::JobQueue(Store& store, const DataDir& data, Catalogue& catalogue, const JobRequests& requests,
+                   Executor executor, uint64_t max_expanded_bytes)
     : store_(store),
+      data_(data),
       catalogue_(catalogue),
       requests_(requests),
       executor_(std::move(executor)),
@@ -38,7 +40,15 @@ JobQueue::~JobQueue() { stop(); }
 // ---------------------------------------------------------------- lifecycle
 
 void JobQueue::requeue_interrupted() {
-  for (const auto& id : store_.requeue_running()) spdlog::warn("job {} was running when the server stopped: re-queued", id);
+  for (const auto& id : store_.requeue_running())
+    spdlog::warn("job {} was running when the server stopped: re-queued (it continues from its checkpoints)", id);
+  // Checkpoints of jobs that will not run again are leftovers.
+  std::set<std::string> queued;
+  for (const auto& j : store_.jobs())
+    if (j.state == JobState::queued) queued.insert(j.id);
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(data_.work(), ec))
+    if (!queued.count(e.path().filename().string())) fs::remove_all(e.path(), ec);
 }
 
 void JobQueue::start(int workers) {
@@ -117,6 +127,8 @@ json JobQueue::job_json(const JobRecord& job) {
           {"texels_done", progress.value("texels_done", uint64_t(0))},
           {"texels_total", progress.value("texels_total", uint64_t(0))},
           {"codebook_sizes", progress.value("codebook_sizes", json(CodebookSizes{}))},
+          // Set when a re-queued job continued from its checkpoints: the phase-3 tiles it kept.
+          {"resumed_from_tile", progress.value("resumed_from_tile", json(nullptr))},
           {"created", job.created},
           {"started", job.started > 0 ? json(job.started) : json()},
           {"finished", job.finished > 0 ? json(job.finished) : json()},
@@ -234,7 +246,8 @@ void JobQueue::on_progress(const std::string& id, const JobProgress& p) {
                    {"texels_done", p.texels_done},
                    {"texels_total", p.texels_total},
                    {"codebook_sizes", p.codebook_sizes},
-                   {"material", p.material}};
+                   {"material", p.material},
+                   {"resumed_from_tile", p.resumed_tile >= 0 ? json(p.resumed_tile) : json(nullptr)}};
   if (stage_changed || now - live.last_persisted > 1.0) {
     store_.set_job_progress(id, live.progress);
     live.last_persisted = now;
@@ -254,6 +267,7 @@ JobContext JobQueue::context(const std::string& id, const NextVersion& next) {
   ctx.cancelled = [this, id] { return stopping_ || cancel_requested(id); };
   ctx.max_expanded_bytes = max_expanded_bytes_;
   ctx.existing_materials = next.existing;
+  ctx.work_folder = data_.work(id).string();
   return ctx;
 }
 
@@ -270,6 +284,7 @@ void JobQueue::run(const JobRecord& job) {
     if (stopping_) throw CancelledError("server shutting down");
     if (!fs::is_regular_file(next.file)) throw Error("internal", "the executor did not write the database");
     publish(job, spec, std::move(next.record), ctx.added);
+    remove_checkpoints(ctx.work_folder);
     spdlog::info("job {} succeeded", job.id);
   } catch (const CancelledError& e) {
     if (stopping_ && !cancel_requested(job.id)) {
@@ -307,6 +322,7 @@ void JobQueue::publish(const JobRecord& job, const JobSpec& spec, VersionRecord 
 void JobQueue::end(const JobRecord& job, JobState state, const json& error, const fs::path& output) {
   std::error_code ec;
   fs::remove(output, ec);
+  if (state != JobState::queued) remove_checkpoints(data_.work(job.id).string());
   std::lock_guard lock(mutex_);
   if (auto it = live_.find(job.id); it != live_.end()) store_.set_job_progress(job.id, it->second.progress);
   const bool requeued = state == JobState::queued;

@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "server/catalogue.h"
+#include "server/data_dir.h"
 #include "server/executor.h"
 #include "server/job_request.h"
 #include "server/store.h"
@@ -26,11 +27,12 @@ namespace btfvq::server {
 
 class JobQueue {
  public:
-  JobQueue(Store& store, Catalogue& catalogue, const JobRequests& requests, Executor executor,
+  JobQueue(Store& store, const DataDir& data, Catalogue& catalogue, const JobRequests& requests, Executor executor,
            uint64_t max_expanded_bytes);
   ~JobQueue();
 
-  // Jobs left running by a killed server go back to the queue; they restart from the beginning.
+  // Jobs left running by a killed server go back to the queue; they continue from their checkpoints
+  // (DataDir::work), and the checkpoints of jobs that are not queued are removed.
   void requeue_interrupted();
   void start(int workers);
   // Stops the workers; running jobs are interrupted and go back to 'queued' for the next start.
@@ -76,6 +78,7 @@ class JobQueue {
   nlohmann::json job_json(const JobRecord& job);  // under mutex_
 
   Store& store_;
+  const DataDir& data_;
   Catalogue& catalogue_;
   const JobRequests& requests_;
   Executor executor_;

@@ -18,12 +18,14 @@ MaterialInput input_of(const MaterialSpec& m, uint64_t max_expanded_bytes) {
               o.seed = uint64_t(m.seed);
               o.progress = progress;
               return synthesize(o);
-            }};
+            },
+            m.preset + " " + std::to_string(m.size) + " " + std::to_string(m.seed)};
   // Uploads and server-side paths: a zip/tar or a directory in the UBO2003 layout, with the
   // zip-bomb limit.
   return {m.name, "load", [file = m.file, max_expanded_bytes](const ProgressFn& progress) {
             return load_sample(file, progress, max_expanded_bytes);
-          }};
+          },
+          m.kind + " " + m.upload_id + " " + m.file};
 }
 
 }  // namespace
@@ -36,8 +38,9 @@ Executor make_pipeline_executor() {
     options.config = pipeline_config(spec.pipeline, "job " + spec.id + " pipeline overrides");
     if (spec.target_mssim > 0) options.target = QualityTarget{spec.target_mssim, spec.pipeline};
     options.cancelled = ctx.cancelled;
+    options.checkpoint_folder = ctx.work_folder;
     options.progress = [&](const CompressProgress& p) {
-      ctx.progress({p.stage, p.phase, p.fraction, p.texels_done, p.texels_total, p.sizes, p.material});
+      ctx.progress({p.stage, p.phase, p.fraction, p.texels_done, p.texels_total, p.sizes, p.material, p.resumed_tile});
     };
     const DatabaseSummary summary = compress_database(previous, inputs, out, options);
     for (const CompressReport& r : summary.added) ctx.added.push_back({r.material, r.raw_bytes, r.width, r.height, r.json});

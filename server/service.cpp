@@ -29,7 +29,7 @@ Service::Service(ServiceConfig config, Executor executor)
       uploads_(store_, data_, config_.max_upload_bytes),
       catalogue_(store_, data_),
       requests_(store_, data_, config_.input_root, config_.max_expanded_bytes),
-      jobs_(store_, catalogue_, requests_, std::move(executor), config_.max_expanded_bytes) {}
+      jobs_(store_, data_, catalogue_, requests_, std::move(executor), config_.max_expanded_bytes) {}
 
 Service::~Service() { stop(); }
 

@@ -336,3 +336,25 @@ TEST_CASE("black texels (LDR 16/128/128, HDR zero) encode and reconstruct exactl
     CHECK(enc.encode_frozen(black.data()).index == e.index);
   }
 }
+
+TEST_CASE("P4 and P3 searches spread over two threads grow exactly the code-books of one thread") {
+  SyntheticMaterial mat(16, 16);
+  mat.classes = 5;
+  for (int limit : {32, 0}) {  // the shipped approximate search, and every candidate
+    SimilaritySettings s = SimilaritySettings::defaults();
+    s.candidate_limit = limit;
+    Codebooks one(mat.grid), two(mat.grid);
+    Encoder a(one, Dynamic::LDR, Thresholds::defaults(), s), b(two, Dynamic::LDR, Thresholds::defaults(), s);
+    b.set_threads(2);
+    for (uint32_t id = 0; id < 256; id += 3) {
+      const auto texel = mat.texel(id);
+      const P6Entry ea = a.encode_growing(texel.data()), eb = b.encode_growing(texel.data());
+      CHECK(ea.index == eb.index);
+      CHECK(ea.scale == eb.scale);
+      CHECK(ea.dissimilarity == eb.dissimilarity);
+    }
+    CHECK(one == two);
+    CHECK(one.p4_index.rows() > 4);  // the searches had candidates to share
+    CHECK(b.stats().comparisons > 0);
+  }
+}

@@ -9,9 +9,11 @@
 #include <set>
 
 #include <btfvq/error.h>
+#include "pipeline/encode/checkpoint.h"
 #include "pipeline/encode/target.h"
 #include "pipeline/format/database.h"
 #include "pipeline/util/atomic_file.h"
+#include "pipeline/util/sha256.h"
 #include "pipeline/runtime/opencl_runtime.h"
 #include "pipeline/encode/resample.h"
 
@@ -107,8 +109,17 @@ ParameterDictionary pipeline_config(const nlohmann::json& overrides, const std::
   return config;
 }
 
-CompressReport compress_material(Database& db, const MeasuredSample& sample, const std::string& name,
-                                 const CompressOptions& options) {
+namespace {
+
+// Where one material's checkpoints go (compress_database with a work folder).
+struct MaterialCheckpoints {
+  CheckpointFolder& folder;
+  size_t input = 0, first_new = 0;        // the input's position; db.materials this work added start here
+  const PhaseThreeState* resume = nullptr;  // continue phase 3 from here
+};
+
+CompressReport compress_one(Database& db, const MeasuredSample& sample, const std::string& name,
+                            const CompressOptions& options, const MaterialCheckpoints* checkpoints) {
   const PipelineSettings s = read_settings(options.config);
   check_material_name(name);
   if (db.find(name)) throw InputError("the database already has a material named '" + name + "'");
@@ -120,9 +131,12 @@ CompressReport compress_material(Database& db, const MeasuredSample& sample, con
 
   using clock = std::chrono::steady_clock;
   auto seconds_since = [](clock::time_point t) { return std::chrono::duration<double>(clock::now() - t).count(); };
+  const PhaseThreeState* resume = checkpoints ? checkpoints->resume : nullptr;
+  const int64_t resumed_tile = resume ? int64_t(resume->tiles_done) : -1;
   auto report = [&](const std::string& stage, int phase, size_t done, size_t total, double fraction) {
     if (options.progress)
-      options.progress({stage, phase, done, total, std::clamp(fraction, 0.0, 1.0), CodebookSizes::of(db.codebooks)});
+      options.progress({stage, phase, done, total, std::clamp(fraction, 0.0, 1.0), CodebookSizes::of(db.codebooks),
+                        "", 0, 0, resumed_tile});
   };
 
   const auto t_resample = clock::now();
@@ -150,6 +164,15 @@ CompressReport compress_material(Database& db, const MeasuredSample& sample, con
     resample_seconds += seconds_since(t);
   };
 
+  ScheduleCheckpoints saves;
+  if (checkpoints) {
+    saves.resume = resume;
+    saves.save = [&](size_t tiles_done, const ScheduleResult& so_far, std::span<const uint32_t> tile) {
+      if (tiles_done > 0) return checkpoints->folder.append_tile(tiles_done, db.codebooks, so_far, tile);
+      const PhaseThreeState start{0, so_far};
+      checkpoints->folder.save_state(checkpoints->input, db, checkpoints->first_new, &start);
+    };
+  }
   const auto t_schedule = clock::now();
   const ScheduleResult result = run_schedule(
       db.codebooks, sample.dynamic(), sample.width(), sample.height(), source, s.thresholds, s.similarity, s.schedule,
@@ -161,7 +184,7 @@ CompressReport compress_material(Database& db, const MeasuredSample& sample, con
           report("phase" + std::to_string(p.phase), p.phase, p.done, p.total,
                  kStageStart[p.phase] + f * (kStageEnd[p.phase] - kStageStart[p.phase]));
       },
-      options.cancelled);
+      options.cancelled, saves);
 
   Material m;
   m.name = name;
@@ -178,7 +201,7 @@ CompressReport compress_material(Database& db, const MeasuredSample& sample, con
   const ScheduleReport& r = result.report;
   nlohmann::json phases = nlohmann::json::array();
   for (int p = 0; p < 3; ++p)
-    phases.push_back({{"phase", p + 1}, {"texels", r.texels[p]}, {"seconds", r.seconds[p]},
+    phases.push_back({{"phase", p + 1}, {"texels", r.texels[p]}, {"seconds", r.seconds[p]}, {"cpu_seconds", r.cpu_seconds[p]},
                       {"codebook_sizes", r.sizes[p]}});
   double mean_dissimilarity = 0, worst = 0;
   for (float d : result.dissimilarity) {
@@ -221,8 +244,16 @@ CompressReport compress_material(Database& db, const MeasuredSample& sample, con
                            {"reclaimed", reclaimed.removed},
                            {"reachable", reclaimed.reachable}}},
               {"codebook_sizes", CodebookSizes::of(db.codebooks)}};
+  if (resume) out.json["resumed_from_tile"] = resume->tiles_done;
   report("done", 0, sample.texel_count(), sample.texel_count(), 1.0);
   return out;
+}
+
+}  // namespace
+
+CompressReport compress_material(Database& db, const MeasuredSample& sample, const std::string& name,
+                                 const CompressOptions& options) {
+  return compress_one(db, sample, name, options, nullptr);
 }
 
 namespace {
@@ -237,6 +268,29 @@ std::vector<uint8_t> read_previous(const std::string& path) {
 
 // Share of one input's progress that loading takes (the rest is compress_material's own fraction).
 constexpr double kLoadShare = 0.1;
+
+// What a work folder's checkpoints are of: the same previous file, settings and inputs.
+std::string work_fingerprint(const std::vector<uint8_t>& previous, const std::vector<MaterialInput>& inputs,
+                             const CompressOptions& options) {
+  nlohmann::json j = {{"checkpoint", 1},
+                      {"previous", sha256_hex(std::string(previous.begin(), previous.end()))},
+                      {"config", options.config.json()},
+                      {"inputs", nlohmann::json::array()}};
+  for (const MaterialInput& in : inputs) j["inputs"].push_back({in.name, in.identity});
+  return sha256_hex(j.dump());
+}
+
+// A material that an interrupted call had finished: the report says only that.
+CompressReport finished_earlier(const Material& m) {
+  CompressReport r;
+  r.material = m.name;
+  r.width = m.width;
+  r.height = m.height;
+  r.raw_bytes = m.raw_bytes;
+  r.json = {{"material", m.name}, {"width", m.width}, {"height", m.height}, {"raw_bytes", m.raw_bytes},
+            {"resumed", "compressed before the interruption"}};
+  return r;
+}
 
 }  // namespace
 
@@ -255,7 +309,23 @@ DatabaseSummary compress_database(const std::string& previous, const std::vector
   const double n = double(std::max<size_t>(inputs.size(), 1));
   auto cancelled = [&] { return options.cancelled && options.cancelled(); };
   DatabaseSummary summary;
-  for (size_t i = 0; i < inputs.size(); ++i) {
+  std::optional<CheckpointFolder> folder;
+  std::optional<SavedWork> saved;
+  if (!options.checkpoint_folder.empty() && !options.target) {
+    folder.emplace(options.checkpoint_folder, work_fingerprint(previous_bytes, inputs, options));
+    saved = folder->load();
+  }
+  const size_t first_new = db.materials.size();
+  size_t first_input = 0;
+  if (saved) {  // the code-books only grew from the previous file's, and the fingerprint names that file
+    db.codebooks = std::move(saved->codebooks);
+    for (Material& m : saved->finished) {
+      summary.added.push_back(finished_earlier(m));
+      db.materials.push_back(std::move(m));
+    }
+    first_input = std::min(saved->input, inputs.size());
+  }
+  for (size_t i = first_input; i < inputs.size(); ++i) {
     const MaterialInput& in = inputs[i];
     auto forward = [&](CompressProgress p, double within) {
       p.fraction = (double(i) + within) / n;
@@ -266,15 +336,26 @@ DatabaseSummary compress_database(const std::string& previous, const std::vector
     };
     if (cancelled()) throw CancelledError();
     forward({in.load_stage, 0, 0, 0, 0, CodebookSizes::of(db.codebooks)}, 0);
+    const auto t_load = std::chrono::steady_clock::now();
     const MeasuredSample sample = in.load([&](size_t done, size_t total) {
       forward({in.load_stage, 0, done, total, 0, CodebookSizes::of(db.codebooks)},
               total ? kLoadShare * double(done) / double(total) : 0);
     });
+    const double load_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_load).count();
     if (cancelled()) throw CancelledError();
     CompressOptions o = options;
     o.progress = [&](const CompressProgress& p) { forward(p, kLoadShare + (1 - kLoadShare) * p.fraction); };
-    summary.added.push_back(options.target ? compress_to_target(db, sample, in.name, *options.target, o)
-                                           : compress_material(db, sample, in.name, o));
+    if (options.target) {
+      summary.added.push_back(compress_to_target(db, sample, in.name, *options.target, o));
+      summary.added.back().json["seconds"]["load"] = load_seconds;
+      continue;
+    }
+    const PhaseThreeState* resume = saved && saved->input == i && saved->phase3 ? &*saved->phase3 : nullptr;
+    std::optional<MaterialCheckpoints> at;
+    if (folder) at.emplace(MaterialCheckpoints{*folder, i, first_new, resume});
+    summary.added.push_back(compress_one(db, sample, in.name, o, at ? &*at : nullptr));
+    summary.added.back().json["seconds"]["load"] = load_seconds;
+    if (folder) folder->save_state(i + 1, db, first_new, nullptr);
   }
   if (options.progress) options.progress({"write", 0, 0, 0, 1.0, CodebookSizes::of(db.codebooks), "", 0, inputs.size()});
   // Round the new rows to what the file stores, so the in-memory model and the file decode alike.

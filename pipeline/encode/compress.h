@@ -29,6 +29,7 @@ struct CompressProgress {
   CodebookSizes sizes{};
   std::string material;     // compress_database: the input being worked on ("" while writing)
   size_t material_index = 0, materials = 0;
+  int64_t resumed_tile = -1;  // this material continues from a checkpoint after this many phase-3 tiles
 };
 
 // Target mode (pipeline/encode/target.h): the quality knob searched until the MSSIM is reached.
@@ -44,6 +45,10 @@ struct CompressOptions {
   std::optional<QualityTarget> target;  // set: `config` is ignored for the settings the knob sets
   std::function<void(const CompressProgress&)> progress;  // may be empty; called from worker threads
   std::function<bool()> cancelled;                         // polled between tiles; true -> CancelledError
+  // A work folder (pipeline/encode/checkpoint.h): checkpoints go there, and a call that finds the
+  // checkpoints of the same work (inputs, settings, previous file) continues from them. The caller
+  // removes them (remove_checkpoints) once the database is where it belongs. Not with `target`.
+  std::string checkpoint_folder;
 };
 
 struct CompressReport {
@@ -76,6 +81,9 @@ struct MaterialInput {
   std::string name;
   std::string load_stage = "load";  // the progress stage while load() runs (e.g. "synthesize")
   std::function<MeasuredSample(const std::function<void(size_t, size_t)>& progress)> load;
+  // What the input is, for the checkpoints' fingerprint (e.g. a path with its size and time, or a
+  // preset with its seed): a different input under the same name is not resumed.
+  std::string identity;
 };
 
 struct DatabaseSummary {

@@ -1,12 +1,14 @@
 #include "pipeline/encode/encoder.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <limits>
 
 #include <btfvq/error.h>
+#include "pipeline/util/parallel.h"
 
 namespace btfvq {
 
@@ -618,7 +620,7 @@ Encoder::Match Encoder::search_composite_in(const Query& q, int level, const std
                                             double threshold_score, Ctx& ctx) const {
   Match best;
   if (order.empty()) return best;
-  std::vector<PlaneRef> planes;
+  std::vector<PlaneRef> planes;  // of the pivots
   // LAESA (MSE only): angles of the query to the pivots bound every candidate's residual from below.
   const bool laesa = level == 4 && settings_.metric == Metric::MSE && settings_.pruning && !pivots_.empty();
   double qnorm2 = 0;
@@ -649,7 +651,7 @@ Encoder::Match Encoder::search_composite_in(const Query& q, int level, const std
     }
   }
   const double kHalfPi = 1.5707963267948966;
-  auto eval = [&](uint32_t e, double bound, double* sc, float* s) {
+  auto eval = [&](Ctx& c, std::vector<PlaneRef>& planes, uint32_t e, double bound, double* sc, float* s) {
     if (laesa && bound > kNoBound) {
       double lb = 0;
       for (size_t j = 0; j < qangle.size(); ++j) {
@@ -659,16 +661,61 @@ Encoder::Match Encoder::search_composite_in(const Query& q, int level, const std
       lb = std::min(std::max(0.0, lb - 1e-6), kHalfPi);
       const double residual = qnorm2 * std::sin(lb) * std::sin(lb) * (1.0 - 1e-5);  // safety margin for rounding
       if (-residual < bound) {
-        ++ctx.counts.laesa_skipped;
+        ++c.counts.laesa_skipped;
         return false;
       }
     }
     if (level == 4) planes_of_p4(e, planes);
     else if (level == 3) planes_of_p3(e, planes);
     else planes.assign(1, PlaneRef{books_.m.at(e, 0), books_.m.at(e, 1), 1.0f});
-    return evaluate_composite(q, planes.data(), int(planes.size()), bound, ctx, sc, s);
+    return evaluate_composite(q, planes.data(), int(planes.size()), bound, c, sc, s);
   };
-  run_search(order, settings_.pruning, threshold_score, eval, ctx.counts, best.index, best.score, best.scale);
+  // P4 and P3 candidates are whole 3D/4D slices: worth spreading over the threads. The result is the
+  // best candidate whatever the order they are scored in (ties to the lowest index), and a bound
+  // found by any thread prunes only candidates that cannot win, so it equals the sequential search.
+  const size_t slots = level >= 3 && threads_ > 1 && order.size() > 1 ? parallel_slots(order.size(), {threads_, 1}) : 1;
+  if (slots == 1) {
+    run_search(order, settings_.pruning, threshold_score,
+               [&](uint32_t e, double bound, double* sc, float* s) { return eval(ctx, planes, e, bound, sc, s); },
+               ctx.counts, best.index, best.score, best.scale);
+    return best;
+  }
+  struct Slot {
+    Ctx ctx;
+    std::vector<PlaneRef> planes;
+    Match best;
+  };
+  std::vector<Slot> slot(slots);
+  for (Slot& w : slot) {
+    w.ctx.k = ctx.k;
+    w.ctx.scratch.resize(ctx.scratch.size());
+    w.best.score = kNoBound;
+  }
+  std::atomic<double> found{kNoBound};  // the best score any thread has: a bound for all
+  parallel_for(0, order.size(), [&](size_t first, size_t last, size_t k) {
+    Slot& w = slot[k];
+    for (size_t i = first; i < last; ++i) {
+      const uint32_t e = order[i];
+      double sc;
+      float sl = 1;
+      ++w.ctx.counts.comparisons;
+      const double bound = settings_.pruning ? std::max(threshold_score, found.load(std::memory_order_relaxed)) : kNoBound;
+      if (!eval(w.ctx, w.planes, e, bound, &sc, &sl)) {
+        ++w.ctx.counts.pruned;
+        continue;
+      }
+      if (sc > w.best.score || (sc == w.best.score && int64_t(e) < w.best.index)) w.best = {int64_t(e), sc, sl};
+      for (double f = found.load(); sc > f && !found.compare_exchange_weak(f, sc);) {
+      }
+    }
+  }, ParallelOptions{threads_, 1});
+  best.score = kNoBound;
+  for (const Slot& w : slot) {
+    ctx.counts.add(w.ctx.counts);
+    if (w.best.index >= 0 && (w.best.score > best.score || (w.best.score == best.score && w.best.index < best.index)))
+      best = w.best;
+  }
+  if (best.index >= 0 && best.score < threshold_score) best.index = -1;
   return best;
 }
 

@@ -88,6 +88,9 @@ class Encoder {
   Encoder(Codebooks& books, Dynamic dyn, const Thresholds& thresholds, const SimilaritySettings& settings);
 
   void set_thresholds(const Thresholds& t) { thresholds_ = t; }
+  // Threads the P4 and P3 searches of the growing phases spread their candidates over (the result
+  // does not depend on it); 1 by default.
+  void set_threads(size_t n) { threads_ = n > 0 ? n : 1; }
   const Thresholds& thresholds() const { return thresholds_; }
   const SimilaritySettings& settings() const { return settings_; }
   const Codebooks& codebooks() const { return books_; }
@@ -248,6 +251,7 @@ class Encoder {
   double plane_dot(const PlaneRef& a, const PlaneRef& b) const;
   void laesa_insert(uint32_t e);
   mutable EncoderStats stats_;
+  size_t threads_ = 1;
 };
 
 // Exact node values of a P4 entry at `scale` (3 x grid.samples() floats, coding space, layout

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <ctime>
 #include <future>
 #include <memory>
 
@@ -75,6 +76,17 @@ std::vector<uint32_t> halton_order(int width, int height) {
   return order;
 }
 
+namespace {
+
+// CPU seconds of the whole process: over a phase, divided by its wall seconds, how many cores it kept busy.
+double process_cpu_seconds() {
+  timespec t{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+  return double(t.tv_sec) + 1e-9 * double(t.tv_nsec);
+}
+
+}  // namespace
+
 void phase_sizes(size_t texels, const ScheduleSettings& s, size_t* phase1, size_t* phase2) {
   size_t a = size_t(std::llround(s.phase1_fraction * double(texels)));
   a = std::clamp<size_t>(a, texels > 0 ? 1 : 0, texels);
@@ -87,7 +99,7 @@ void phase_sizes(size_t texels, const ScheduleSettings& s, size_t* phase1, size_
 ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height, const TexelSource& source,
                             const Thresholds& thresholds, const SimilaritySettings& similarity,
                             const ScheduleSettings& schedule, const std::function<void(const ScheduleProgress&)>& progress,
-                            const std::function<bool()>& cancelled) {
+                            const std::function<bool()>& cancelled, const ScheduleCheckpoints& checkpoints) {
   if (!source) throw InputError("run_schedule: no texel source");
   const std::vector<uint32_t> order = halton_order(width, height);
   const size_t total = order.size(), samples = books.grid.samples();
@@ -100,13 +112,24 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
   const size_t phase3_from = refining ? 0 : bounds[2];
   const size_t refine_texels = std::max(bounds[2], size_t(std::llround(schedule.refine.fraction * double(total))));
 
+  const PhaseThreeState* resume = checkpoints.resume;
   ScheduleResult result;
   result.p6_index.assign(total, -1);
   result.p6_scale.assign(total, 0.0f);
   result.dissimilarity.assign(total, 0.0f);
+  if (resume) {
+    if (resume->result.p6_index.size() != total) throw InputError("run_schedule: the checkpoint is of another sample");
+    result = resume->result;
+  }
   const CodebookSizes first = CodebookSizes::of(books);  // rows of earlier materials are not refined
-  auto encoder = std::make_unique<Encoder>(books, dyn, thresholds, similarity);
-  EncoderStats grown;  // of encoders replaced after a refinement
+  // A resumed run starts in phase 3, with the thresholds the growing phases ended with.
+  auto make_encoder = [&](const Thresholds& t) {
+    auto e = std::make_unique<Encoder>(books, dyn, t, similarity);
+    e->set_threads(size_t(schedule.threads));
+    return e;
+  };
+  auto encoder = make_encoder(resume && n2 > 0 ? thresholds.relaxed(schedule.relax_factor) : thresholds);
+  EncoderStats grown = resume ? resume->result.report.encoder : EncoderStats{};  // of encoders replaced
   const size_t tile = size_t(schedule.tile_texels);
   const SearchPath path = schedule.search_path(books.grid, similarity);
   std::unique_ptr<FrozenSearch> frozen;  // built when phase 3 starts: the code-books are final then
@@ -140,7 +163,7 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
       const RefineStep step = refine_step(books, first, dyn, as, source, tile, it == 0 ? schedule.refine.merge : RefineMerge{});
       result.report.refine.push_back(step);
       grown.add(encoder->stats());
-      encoder = std::make_unique<Encoder>(books, dyn, encoder->thresholds(), similarity);
+      encoder = make_encoder(encoder->thresholds());
       if (!(step.mse_before - step.mse_after > schedule.refine.min_gain * step.mse_before)) break;
     }
     result.report.refine_texels = refine_texels;
@@ -158,6 +181,8 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
   for (int phase = 1; phase <= 3; ++phase)
     for (size_t at = phase == 3 ? phase3_from : bounds[phase - 1]; at < bounds[phase]; at += tile)
       tiles.push_back({phase, at, std::min(tile, bounds[phase] - at)});
+  const size_t first_phase3 = size_t(std::count_if(tiles.begin(), tiles.end(), [](const Tile& t) { return t.phase < 3; }));
+  const size_t start = resume ? std::min(tiles.size(), first_phase3 + resume->tiles_done) : 0;
   std::vector<float> buffers[2];
   auto resample = [&](size_t k) {
     std::vector<float>& buffer = buffers[k % 2];
@@ -165,20 +190,27 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
     source(order.data() + tiles[k].at, tiles[k].n, buffer.data());
   };
   std::future<void> next;
-  if (!tiles.empty()) next = std::async(std::launch::async, resample, size_t(0));
+  if (start < tiles.size()) next = std::async(std::launch::async, resample, start);
 
   auto t0 = std::chrono::steady_clock::now();
-  for (size_t k = 0; k < tiles.size(); ++k) {
+  double cpu0 = process_cpu_seconds();
+  for (size_t k = start; k < tiles.size(); ++k) {
     const auto [phase, at, n] = tiles[k];
     next.get();  // the tile's texels (rethrows the source's error)
     if (cancelled && cancelled()) throw CancelledError("encoding cancelled in phase " + std::to_string(phase));
     const size_t from = phase == 3 ? phase3_from : bounds[phase - 1];
-    if (phase == 3 && at == from && refining) refine();  // before the next prefetch: one source call at a time
+    if (phase == 3 && at == from && refining && !resume) refine();  // before the next prefetch: one source call at a time
     if (k + 1 < tiles.size()) next = std::async(std::launch::async, resample, k + 1);
     const float* texels = buffers[k % 2].data();
-    if (at == from) {
+    if (at == from || k == start) {
       t0 = std::chrono::steady_clock::now();
-      if (phase == 2) encoder->set_thresholds(thresholds.relaxed(schedule.relax_factor));
+      cpu0 = process_cpu_seconds();
+      if (phase == 2 && at == from) encoder->set_thresholds(thresholds.relaxed(schedule.relax_factor));
+    }
+    if (phase == 3 && at == from && !resume && checkpoints.save) {  // the code-book version
+      result.report.encoder = grown;
+      result.report.encoder.add(encoder->stats());
+      checkpoints.save(0, result, {});
     }
     auto store = [&](size_t i, const P6Entry& e) {
       const uint32_t id = order[at + i];
@@ -240,11 +272,13 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
       result.report.adopt_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t_adopt).count();
       if (books.p4_index.rows() > tile_start) frozen->sync();
       for (size_t i = 0; i < n; ++i) store(i, entries[i]);
+      if (checkpoints.save) checkpoints.save(k + 1 - first_phase3, result, {order.data() + at, n});
     }
     if (progress) progress({phase, false, at + n - from, bounds[phase] - from, CodebookSizes::of(books)});
     if (at + n == bounds[phase]) {
       result.report.sizes[phase - 1] = CodebookSizes::of(books);
       result.report.seconds[phase - 1] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      result.report.cpu_seconds[phase - 1] = process_cpu_seconds() - cpu0;
     }
   }
   for (int phase = 1; phase <= 3; ++phase) {

@@ -8,6 +8,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <functional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -56,6 +57,7 @@ struct ScheduleReport {
   size_t texels[3] = {0, 0, 0};
   CodebookSizes sizes[3];   // after each phase
   double seconds[3] = {0, 0, 0};
+  double cpu_seconds[3] = {0, 0, 0};  // the process's CPU time over the same stretches (every thread)
   EncoderStats encoder;     // phases 1 and 2
   SearchPath search = SearchPath::Pruned;  // phase 3
   SearchStats search_stats;
@@ -73,6 +75,21 @@ struct ScheduleResult {
   ScheduleReport report;
 };
 
+// What run_schedule needs, besides the code-books as they were then, to continue phase 3 after
+// `tiles_done` of its tiles as if it had never stopped (pipeline/encode/checkpoint.h keeps it).
+struct PhaseThreeState {
+  size_t tiles_done = 0;
+  ScheduleResult result;  // p6 rows of the tiles done (and of phases 1-2 without a refinement), report so far
+};
+
+// Checkpoints of one run_schedule call. `save` is called when phase 3 starts (tiles_done 0: the
+// code-books are a finished version of the growing phases and the refinement) and after each
+// phase-3 tile, with the texels that tile assigned; it may throw to stop the run (a full disk).
+struct ScheduleCheckpoints {
+  std::function<void(size_t tiles_done, const ScheduleResult& so_far, std::span<const uint32_t> tile)> save;
+  const PhaseThreeState* resume = nullptr;  // continue from here (the code-books already restored)
+};
+
 // Every texel of a width x height grid exactly once, in the order of the 2D Halton sequence
 // (bases 2 and 3); texels the sequence has not reached after 16 x W x H points follow in scan order.
 std::vector<uint32_t> halton_order(int width, int height);
@@ -84,6 +101,7 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
                             const Thresholds& thresholds, const SimilaritySettings& similarity,
                             const ScheduleSettings& schedule,
                             const std::function<void(const ScheduleProgress&)>& progress = {},
-                            const std::function<bool()>& cancelled = {});
+                            const std::function<bool()>& cancelled = {},
+                            const ScheduleCheckpoints& checkpoints = {});
 
 }  // namespace btfvq
