@@ -217,3 +217,33 @@ TEST_CASE("a store write that finds the disk full is a no_space error naming ENO
   REQUIRE(store.job("j1"));
   CHECK(store.job("j1")->spec == job.spec);
 }
+
+TEST_CASE("a job's end is recorded even when the disk is full for a moment (the record is retried)") {
+  SmallDisk disk("full-disk-end");
+  std::thread freer;
+  // The job fills the disk and fails with an error too large for what is left of the store's log,
+  // so its end cannot be recorded until the filler goes away a moment later.
+  auto executor = [&](const server::JobSpec&, const std::string&, const std::string&, server::JobContext&) {
+    disk.fill(0);
+    freer = std::thread([&] {
+      std::this_thread::sleep_for(std::chrono::milliseconds(300));
+      disk.free_space();
+    });
+    throw InputError("the material is broken: " + std::string(2 * kMiB, 'e'));
+  };
+  server::ServiceConfig config;
+  config.data_dir = disk.dir / "data";
+  server::Service service(config, executor);
+  service.start();
+  spdlog::set_level(spdlog::level::off);  // the failed tries would log the 2 MiB message each
+  const json job = wait_final(service, service.submit(synthetic_job("shop", "wool"))["id"]);
+  spdlog::set_level(spdlog::level::warn);
+  if (freer.joinable()) freer.join();
+  // Without the retries the first failed record would end the worker (and the process); with them
+  // the job's end is recorded once the filler is gone.
+  CHECK(job["state"] == "failed");
+  CHECK(job["error"]["code"] == "invalid_input");
+  CHECK(job["error"]["message"].get<std::string>().size() > 2 * kMiB);
+  CHECK(job["finished"].is_number());
+  service.stop();
+}
