@@ -142,7 +142,8 @@ UploadResult HttpClient::upload_file(const std::string& id, const std::string& f
   auto retry_after = [&](const std::string& why) {
     if (failures >= options.max_retries)
       throw Error("connection", "upload of '" + file + "' failed " + std::to_string(failures + 1) +
-                                    " times in a row, the last time: " + why + "; run the same command again to resume");
+                                    " times in a row, the last time: " + why +
+                                    "; run the same command again to resume");
     const auto pause = std::min(options.max_pause, options.first_pause * (int64_t(1) << std::min(failures, 20)));
     ++failures;
     ++result.retries;

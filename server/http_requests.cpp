@@ -81,7 +81,8 @@ UploadRequest upload_request(const httplib::Request& req) {
   u.declared_size = header_number(req, "Content-Length");
   if (req.has_header("Content-Range")) u.range = parse_content_range(req.get_header_value("Content-Range"));
   u.sha256 = req.get_header_value("X-Sha256");
-  std::transform(u.sha256.begin(), u.sha256.end(), u.sha256.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  std::transform(u.sha256.begin(), u.sha256.end(), u.sha256.begin(),
+                 [](unsigned char c) { return char(std::tolower(c)); });
   return u;
 }
 

@@ -24,8 +24,9 @@ UploadRequest upload_request(const httplib::Request& req);
 // Streams an upload body into the sink that `begin` opens and finishes it; returns the upload's
 // state. A request that `begin` refuses has its modest body read first, so that the client gets
 // the answer (a 409 with where to continue, say) instead of a reset connection; one declared too
-// large, or larger than 64 MiB, is answered at once and the connection closed. Past the sink's limit the rest of a modest body is still read, for the
-// same reason, and so is the rest of a body that the disk refused; a huge one is cut off.
+// large, or larger than 64 MiB, is answered at once and the connection closed. Past the sink's
+// limit the rest of a modest body is still read, for the same reason, and so is the rest of a body
+// that the disk refused; a huge one is cut off.
 nlohmann::json receive_upload(const httplib::Request& req, const httplib::ContentReader& reader,
                               httplib::Response& res, const std::function<std::unique_ptr<UploadSink>()>& begin);
 

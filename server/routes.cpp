@@ -96,7 +96,8 @@ void HttpServer::install_routes() {
 
   // ---- uploads
   s.Put(R"(/v1/uploads/([^/]+))", [&svc](const Request& req, Response& res, const ContentReader& reader) {
-    const json reply = receive_upload(req, reader, res, [&] { return svc.begin_upload(req.matches[1], upload_request(req)); });
+    const json reply =
+        receive_upload(req, reader, res, [&] { return svc.begin_upload(req.matches[1], upload_request(req)); });
     send_json(res, reply, reply["state"] == "complete" ? 201 : 200);
   });
   s.Get(R"(/v1/uploads/([^/]+))", [&svc](const Request& req, Response& res) {

@@ -54,7 +54,8 @@ UploadSink::~UploadSink() {
   file_.reset();
   if (!done_ && size_ > 0) {
     if (request_.range)
-      spdlog::info("upload {}: piece at {} cut off after {} bytes (kept, to resume)", id_, request_.range->first, size_);
+      spdlog::info("upload {}: piece at {} cut off after {} bytes (kept, to resume)", id_, request_.range->first,
+                   size_);
     else
       spdlog::info("upload {} abandoned after {} bytes", id_, size_);
   }
@@ -281,7 +282,8 @@ size_t Uploads::remove_abandoned(std::chrono::duration<double> age) {
     const fs::path part = data_.partial_upload(id);
     const auto last = fs::exists(part, ec) ? fs::last_write_time(part, ec) : fs::last_write_time(entry.path(), ec);
     if (ec || last > cutoff) continue;
-    spdlog::info("upload {}: no piece arrived for {:.0f} s; its {} bytes are removed", id, age.count(), size_or_zero(part));
+    spdlog::info("upload {}: no piece arrived for {:.0f} s; its {} bytes are removed", id, age.count(),
+                 size_or_zero(part));
     remove_partial(id);
     ++removed;
   }

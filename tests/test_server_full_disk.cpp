@@ -146,7 +146,8 @@ TEST_CASE("a job whose database write finds the disk full fails naming ENOSPC; t
   CHECK(temporaries(t.data()) == std::vector<std::string>{});
 }
 
-TEST_CASE("an upload that finds the disk full is refused with 507 no_space and leaves nothing; the server keeps running") {
+TEST_CASE("an upload that finds the disk full is refused with 507 no_space and leaves nothing; "
+          "the server keeps running") {
   SmallDisk disk("full-disk-upload");
   server::ServiceConfig config;
   config.data_dir = disk.dir / "data";
@@ -195,7 +196,8 @@ TEST_CASE("an upload that finds the disk full is refused with 507 no_space and l
   CHECK(temporaries(t.data()) == std::vector<std::string>{});
 }
 
-TEST_CASE("a store write that finds the disk full is a no_space error naming ENOSPC; the store works once space is back") {
+TEST_CASE("a store write that finds the disk full is a no_space error naming ENOSPC; "
+          "the store works once space is back") {
   SmallDisk disk("full-disk-store");
   server::Store store((disk.dir / "btfvq.sqlite").string());
   server::JobRecord job;
