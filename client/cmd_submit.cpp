@@ -1,9 +1,9 @@
 // `btfvq submit`: sends materials to a server as one job and prints the job id. Local files are
-// uploaded first (PUT /v1/uploads/<random id>, streamed, sha256-checked by the server).
+// uploaded first, in resumable pieces (PUT /v1/uploads/s<sha256 prefix> with Content-Range; the
+// server checks the whole file's sha256).
 #include <filesystem>
 #include <fstream>
 #include <iostream>
-#include <random>
 
 #include "client/cli.h"
 #include "client/http_client.h"
@@ -15,13 +15,9 @@ namespace btfvq::cli {
 namespace {
 using nlohmann::json;
 
-std::string random_upload_id() {
-  std::mt19937_64 rng{std::random_device{}()};
-  static const char* digits = "0123456789abcdef";
-  std::string id = "u";
-  for (int i = 0; i < 16; ++i) id += digits[rng() & 15];
-  return id;
-}
+// Named after the content, so that the same command run again after an interruption finds the
+// upload where it was cut off (and a file already uploaded is not sent again).
+std::string upload_id_of(const std::string& sha256) { return "s" + sha256.substr(0, 32); }
 
 json synthetic_source(const std::string& spec, int64_t seed) {
   const auto colon = spec.find(':');
@@ -76,12 +72,15 @@ int run_submit(const Args& args) {
 
   // Uploads go first so that a failed upload submits nothing.
   for (const auto& file : uploads) {
-    const std::string id = random_upload_id();
     const std::string sha = sha256_file(file);
+    const std::string id = upload_id_of(sha);
     ProgressBar bar("upload " + std::filesystem::path(file).filename().string());
-    const json reply = client.put_file("/v1/uploads/" + id, file, sha,
-                                       [&](uint64_t done, uint64_t total) { bar.update_bytes(done, total); });
-    bar.finish(ProgressBar::format_bytes(reply.value("size", uint64_t(0))) + " uploaded as " + id);
+    const UploadResult up =
+        client.upload_file(id, file, sha, [&](uint64_t done, uint64_t total) { bar.update_bytes(done, total); });
+    std::string how = " uploaded as " + id;
+    if (up.existed) how = " already on the server as " + id;
+    else if (up.resumed_from > 0) how += " (resumed at " + ProgressBar::format_bytes(up.resumed_from) + ")";
+    bar.finish(ProgressBar::format_bytes(up.record.value("size", uint64_t(0))) + how);
     sources.push_back({{"upload", id}});
     default_names.push_back(material_name_of(file));
   }

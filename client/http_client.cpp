@@ -5,6 +5,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <thread>
 
 #include "client/cli.h"
 #include <btfvq/error.h>
@@ -117,6 +118,118 @@ json HttpClient::put_file(const std::string& path, const std::string& file, cons
     return sink.write(buffer.data(), got);
   };
   return parse_reply(client_->Put(path, headers, size_t(size), provider, "application/octet-stream"), "PUT " + path);
+}
+
+UploadResult HttpClient::upload_file(const std::string& id, const std::string& file, const std::string& sha256,
+                                     const ByteProgress& progress, const UploadOptions& options) {
+  const std::string path = "/v1/uploads/" + id;
+  UploadResult result;
+  std::error_code ec;
+  const uint64_t size = fs::file_size(file, ec);
+  if (ec) throw InputError("cannot read '" + file + "': " + ec.message());
+  if (size == 0) {  // Content-Range cannot name a piece of nothing
+    result.record = put_file(path, file, sha256, progress);
+    result.existed = false;
+    return result;
+  }
+  std::ifstream in(file, std::ios::binary);
+  if (!in) throw InputError("cannot read '" + file + "'");
+
+  std::optional<uint64_t> offset;  // where the next piece starts; unknown: ask the server
+  int failures = 0, corrections = 0;
+  bool asked = false;
+  // After a network error or a 5xx: a pause that grows, then the server is asked where it got to.
+  auto retry_after = [&](const std::string& why) {
+    if (failures >= options.max_retries)
+      throw Error("connection", "upload of '" + file + "' failed " + std::to_string(failures + 1) +
+                                    " times in a row, the last time: " + why +
+                                    "; run the same command again to resume");
+    const auto pause = std::min(options.max_pause, options.first_pause * (int64_t(1) << std::min(failures, 20)));
+    ++failures;
+    ++result.retries;
+    std::this_thread::sleep_for(pause);
+    offset.reset();
+  };
+  auto answer = [](const httplib::Result& r) {
+    return r ? "the server answered " + std::to_string(r->status) + ": " + r->body : httplib::to_string(r.error());
+  };
+  for (;;) {
+    if (!offset) {
+      auto r = client_->Get(path);
+      if (!r || r->status >= 500) {
+        retry_after(answer(r));
+        continue;
+      }
+      offset = 0;
+      if (r->status != 404) {
+        const json u = parse_reply(r, "GET " + path);
+        const std::string state = u.value("state", "");
+        if (state == "complete") {
+          if (u.value("sha256", "") != sha256)
+            throw Error("conflict", "upload '" + id + "' on the server hashes to " + u.value("sha256", "") +
+                                        ", not to " + sha256 + " as '" + file + "'");
+          result.record = u;
+          result.existed = !asked;
+          if (progress) progress(size, size);
+          return result;
+        }
+        if (state == "partial" && u.value("total", uint64_t(0)) == size && u.value("sha256", "") == sha256)
+          offset = std::min(u.value("received", uint64_t(0)), size);
+      }
+      if (!asked) result.resumed_from = *offset;
+      asked = true;
+      if (*offset == size) {  // every byte is there and the last piece is being checked: ask again soon
+        retry_after("the server is still checking the last piece");
+        continue;
+      }
+    }
+    const uint64_t first = *offset, length = std::min(options.piece_bytes, size - first);
+    const httplib::Headers headers{
+        {"Content-Range", "bytes " + std::to_string(first) + "-" + std::to_string(first + length - 1) + "/" +
+                              std::to_string(size)},
+        {"X-Sha256", sha256}};
+    uint64_t sent = 0;
+    auto provider = [&](size_t at, size_t n, httplib::DataSink& sink) {
+      std::vector<char> buffer(std::min<size_t>(n, 1 << 16));
+      in.clear();
+      in.seekg(std::streamoff(first + at));
+      in.read(buffer.data(), std::streamsize(buffer.size()));
+      const size_t got = size_t(in.gcount());
+      if (got == 0) return false;
+      sent += got;
+      if (progress) progress(first + at + got, size);
+      return sink.write(buffer.data(), got);
+    };
+    auto r = client_->Put(path, headers, size_t(length), provider, "application/octet-stream");
+    result.bytes_sent += sent;
+    if (!r || r->status >= 500) {
+      retry_after(answer(r));
+      continue;
+    }
+    if (r->status == 409) {
+      json error;
+      try {
+        error = json::parse(r->body).at("error");
+      } catch (const std::exception&) {
+      }
+      const std::string code = error.is_object() ? error.value("code", "") : "";
+      if (code == "upload_offset" && error.contains("received") && ++corrections <= options.max_retries) {
+        offset = std::min(error["received"].get<uint64_t>(), size);
+        if (*offset < size) continue;
+      }
+      if (code == "conflict") {  // most likely the server still reads the piece of a connection that broke
+        retry_after(answer(r));
+        continue;
+      }
+    }
+    const json reply = parse_reply(r, "PUT " + path);
+    failures = corrections = 0;
+    if (reply.value("state", "") == "complete") {
+      result.record = reply;
+      return result;
+    }
+    offset = reply.value("received", first + length);
+  }
 }
 
 void HttpClient::events(const std::string& path,

@@ -4,9 +4,11 @@
 // server's message, so main.cpp maps them to exit codes like local failures.
 #include <nlohmann/json.hpp>
 
+#include <chrono>
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -37,6 +39,23 @@ struct DownloadResult {
   uint64_t resumed_from = 0;  // bytes already present in FILE.part
 };
 
+// How `btfvq submit --upload` sends a file: in pieces (PUT with Content-Range), each retried after a
+// network error or a 5xx with a growing pause, continuing from what the server says it has.
+struct UploadOptions {
+  uint64_t piece_bytes = uint64_t(8) << 20;
+  int max_retries = 8;                                 // in a row, without a piece getting through
+  std::chrono::milliseconds first_pause{500};          // doubled after each retry, up to max_pause
+  std::chrono::milliseconds max_pause{8000};
+};
+
+struct UploadResult {
+  nlohmann::json record;      // the server's record of the complete upload
+  uint64_t resumed_from = 0;  // bytes the server already had when the upload began
+  uint64_t bytes_sent = 0;    // body bytes sent, those sent again after a failure included
+  int retries = 0;
+  bool existed = false;       // the server had the complete upload already: nothing was sent
+};
+
 class HttpClient {
  public:
   explicit HttpClient(Remote remote);
@@ -48,6 +67,11 @@ class HttpClient {
   // Streams a file as the body of PUT `path` with an X-Sha256 header.
   nlohmann::json put_file(const std::string& path, const std::string& file, const std::string& sha256,
                           const ByteProgress& progress);
+  // Uploads `file` (whose sha256 is `sha256`) as upload `id` in pieces: asks the server where a
+  // previous attempt got to (GET /v1/uploads/{id}) and continues there; a complete upload of the
+  // same sha256 is used as it is. Throws when a piece is refused (4xx) or the retries run out.
+  UploadResult upload_file(const std::string& id, const std::string& file, const std::string& sha256,
+                           const ByteProgress& progress, const UploadOptions& options = {});
   // Follows a server-sent event stream; `on_event(event, data)` returns false to stop early.
   // Returns when the server ends the stream (or on_event said stop); throws on HTTP errors.
   void events(const std::string& path, const std::function<bool(const std::string&, const nlohmann::json&)>& on_event);

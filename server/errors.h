@@ -1,5 +1,7 @@
 #pragma once
 // Errors of the server beyond the library's. Each code has its status in http_errors.cpp.
+#include <cstdint>
+
 #include <btfvq/error.h>
 
 namespace btfvq::server {
@@ -20,6 +22,17 @@ class ForbiddenError : public Error {
 class ConflictError : public Error {
  public:
   explicit ConflictError(const std::string& m) : Error("conflict", m) {}
+};
+
+// A piece of a resumable upload (PUT with Content-Range) that does not start where the upload
+// stands: 409, with `received` in the body so that the client continues from there.
+class UploadOffsetError : public Error {
+ public:
+  UploadOffsetError(const std::string& m, uint64_t received) : Error("upload_offset", m), received_(received) {}
+  uint64_t received() const { return received_; }
+
+ private:
+  uint64_t received_;
 };
 
 // A Range that starts past the end of the content: 416.

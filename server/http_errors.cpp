@@ -7,6 +7,8 @@
 #include <iterator>
 #include <string_view>
 
+#include "server/errors.h"
+
 namespace btfvq::server {
 namespace {
 
@@ -14,16 +16,19 @@ namespace {
 constexpr std::pair<std::string_view, int> kStatusOfCode[] = {
     {"unauthorized", 401}, {"forbidden", 403}, {"not_found", 404},
     {"request_timeout", 408},                  {"conflict", 409},
-    {"cancelled", 409},    {"too_large", 413},
-    {"range_not_satisfiable", 416},            {"unavailable", 503}};
+    {"cancelled", 409},    {"upload_offset", 409},
+    {"too_large", 413},    {"range_not_satisfiable", 416},
+    {"unavailable", 503},  {"no_space", 507}};
 
 // The statuses that httplib sends by itself, named as the table above names them.
 constexpr int kHttplibStatuses[] = {404, 413, 416};
 
 }  // namespace
 
-std::string error_body(const std::string& code, const std::string& message) {
-  return nlohmann::json{{"error", {{"code", code}, {"message", message}}}}.dump();
+std::string error_body(const std::string& code, const std::string& message, const nlohmann::json& details) {
+  nlohmann::json error = {{"code", code}, {"message", message}};
+  if (details.is_object()) error.update(details);
+  return nlohmann::json{{"error", error}}.dump();
 }
 
 int http_status(const Error& error) {
@@ -35,6 +40,8 @@ int http_status(const Error& error) {
 std::pair<int, std::string> error_response(std::exception_ptr error) {
   try {
     std::rethrow_exception(error);
+  } catch (const UploadOffsetError& e) {
+    return {http_status(e), error_body(e.code(), e.what(), {{"received", e.received()}})};
   } catch (const Error& e) {
     return {http_status(e), error_body(e.code(), e.what())};
   } catch (const nlohmann::json::exception& e) {

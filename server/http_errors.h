@@ -5,11 +5,15 @@
 #include <string>
 #include <utility>
 
+#include <nlohmann/json.hpp>
+
 #include <btfvq/error.h>
 
 namespace btfvq::server {
 
-std::string error_body(const std::string& code, const std::string& message);
+// `details` (an object) adds fields beside code and message, e.g. the `received` of upload_offset.
+std::string error_body(const std::string& code, const std::string& message,
+                       const nlohmann::json& details = nullptr);
 
 int http_status(const Error& error);
 

@@ -3,11 +3,13 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
 #include <random>
 
 #include <btfvq/error.h>
 #include "pipeline/encode/checkpoint.h"
+#include "pipeline/util/atomic_file.h"
 #include "server/errors.h"
 
 namespace btfvq::server {
@@ -49,6 +51,13 @@ void JobQueue::requeue_interrupted() {
   std::error_code ec;
   for (const auto& e : fs::directory_iterator(data_.work(), ec))
     if (!queued.count(e.path().filename().string())) fs::remove_all(e.path(), ec);
+}
+
+void JobQueue::set_maintenance(std::function<void()> task, std::chrono::milliseconds every) {
+  std::lock_guard lock(mutex_);
+  maintenance_ = std::move(task);
+  maintenance_every_ = std::max(every, std::chrono::milliseconds(1));
+  next_maintenance_ = std::chrono::steady_clock::now() + maintenance_every_;
 }
 
 void JobQueue::start(int workers) {
@@ -185,15 +194,47 @@ std::optional<JobRecord> JobQueue::next_job() {
   return std::nullopt;
 }
 
+bool JobQueue::maintenance_due() const {
+  return maintenance_ && !maintaining_ && std::chrono::steady_clock::now() >= next_maintenance_;
+}
+
+void JobQueue::maintain() {
+  try {
+    maintenance_();
+  } catch (const std::exception& e) {
+    spdlog::warn("maintenance failed: {}", e.what());
+  }
+  std::lock_guard lock(mutex_);
+  maintaining_ = false;
+}
+
 void JobQueue::worker_loop() {
   for (;;) {
     JobRecord job;
     {
       std::unique_lock lock(mutex_);
       std::optional<JobRecord> next;
-      work_cv_.wait(lock, [&] { return stopping_ || (next = next_job()).has_value(); });
+      auto ready = [&] { return stopping_ || maintenance_due() || (next = next_job()).has_value(); };
+      if (maintenance_) work_cv_.wait_until(lock, next_maintenance_, ready);
+      else work_cv_.wait(lock, ready);
       if (stopping_) return;
-      job = begin_running(std::move(*next));
+      if (maintenance_due()) {
+        // The next time is set now, so that the other workers wait for it rather than for this one.
+        maintaining_ = true;
+        next_maintenance_ = std::chrono::steady_clock::now() + maintenance_every_;
+        lock.unlock();
+        maintain();
+        continue;
+      }
+      if (!next) continue;
+      try {
+        job = begin_running(*next);
+      } catch (const std::exception& e) {
+        // The store cannot record the start (a full disk): the job stays queued; try again shortly.
+        spdlog::error("job {} cannot start: {}", next->id, e.what());
+        work_cv_.wait_for(lock, std::chrono::seconds(1), [&] { return stopping_.load(); });
+        continue;
+      }
     }
     run(job);
     end_running(job);
@@ -203,13 +244,13 @@ void JobQueue::worker_loop() {
 
 // The database is busy until end_running(): its next job waits, and so does its version number.
 JobRecord JobQueue::begin_running(JobRecord job) {
-  busy_databases_.insert(job.database);
   job.started = now_seconds();
   job.state = JobState::running;
+  store_.set_job_state(job.id, JobState::running, nullptr, job.started, 0);  // first: it may throw
+  busy_databases_.insert(job.database);
   Live live;
   live.stage_started = job.started;
   live_[job.id] = live;
-  store_.set_job_state(job.id, JobState::running, nullptr, job.started, 0);
   notify();
   return job;
 }
@@ -272,13 +313,14 @@ JobContext JobQueue::context(const std::string& id, const NextVersion& next) {
 }
 
 void JobQueue::run(const JobRecord& job) {
-  const JobSpec spec = requests_.spec(job);
-  // No other job picks the same version number meanwhile: see begin_running().
-  NextVersion next = catalogue_.next_version(job.database);
-  fs::create_directories(next.file.parent_path());
-  JobContext ctx = context(job.id, next);
-  spdlog::info("job {} running on database {}", job.id, job.database);
+  NextVersion next;
   try {
+    const JobSpec spec = requests_.spec(job);
+    // No other job picks the same version number meanwhile: see begin_running().
+    next = catalogue_.next_version(job.database);
+    fs::create_directories(next.file.parent_path());
+    JobContext ctx = context(job.id, next);
+    spdlog::info("job {} running on database {}", job.id, job.database);
     executor_(spec, next.previous_file, next.file.string(), ctx);
     if (cancel_requested(job.id)) throw CancelledError("cancelled by request");
     if (stopping_) throw CancelledError("server shutting down");
@@ -297,6 +339,14 @@ void JobQueue::run(const JobRecord& job) {
   } catch (const Error& e) {
     spdlog::warn("job {} failed: {}", job.id, e.what());
     end(job, JobState::failed, {{"code", e.code()}, {"message", e.what()}}, next.file);
+  } catch (const fs::filesystem_error& e) {
+    // A folder that cannot be made on a full disk is the same failure as a file that cannot be written.
+    const bool full = is_no_space(e.code().value());
+    spdlog::warn("job {} failed: {}", job.id, e.what());
+    end(job, JobState::failed,
+        {{"code", full ? "no_space" : "io"},
+         {"message", std::string(e.what()) + (e.code().value() == ENOSPC ? " (ENOSPC)" : full ? " (EDQUOT)" : "")}},
+        next.file);
   } catch (const std::exception& e) {
     spdlog::error("job {} failed: {}", job.id, e.what());
     end(job, JobState::failed, {{"code", "internal"}, {"message", e.what()}}, next.file);
@@ -319,14 +369,38 @@ void JobQueue::publish(const JobRecord& job, const JobSpec& spec, VersionRecord 
 
 // A cancel that came after the executor wrote, or an executor that failed after writing, must not
 // leave a file where the version would be.
+//
+// The job's end is retried a few times, a moment apart: the disk may be full just now (the job's own
+// failure may be why, and its removed output frees the space), and a lost end would leave the job
+// 'running' until the next start re-queues it.
 void JobQueue::end(const JobRecord& job, JobState state, const json& error, const fs::path& output) {
   std::error_code ec;
-  fs::remove(output, ec);
+  if (!output.empty()) fs::remove(output, ec);
   if (state != JobState::queued) remove_checkpoints(data_.work(job.id).string());
-  std::lock_guard lock(mutex_);
-  if (auto it = live_.find(job.id); it != live_.end()) store_.set_job_progress(job.id, it->second.progress);
   const bool requeued = state == JobState::queued;
-  store_.set_job_state(job.id, state, error, requeued ? 0 : job.started, requeued ? 0 : now_seconds());
+  const double finished = requeued ? 0 : now_seconds();
+  constexpr int kAttempts = 5;
+  for (int attempt = 1;; ++attempt) {
+    try {
+      std::lock_guard lock(mutex_);
+      store_.set_job_state(job.id, state, error, requeued ? 0 : job.started, finished);
+      break;
+    } catch (const std::exception& e) {
+      if (attempt == kAttempts) {
+        spdlog::error("job {}: its end ({}) could not be recorded in {} attempts: {}", job.id, to_string(state),
+                      kAttempts, e.what());
+        return;
+      }
+      spdlog::warn("job {}: recording its end failed (attempt {} of {}): {}", job.id, attempt, kAttempts, e.what());
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(100) * (1 << attempt));
+  }
+  try {  // the last progress is only a detail of the record: not worth another wait
+    std::lock_guard lock(mutex_);
+    if (auto it = live_.find(job.id); it != live_.end()) store_.set_job_progress(job.id, it->second.progress);
+  } catch (const std::exception& e) {
+    spdlog::warn("job {}: its last progress was not recorded: {}", job.id, e.what());
+  }
 }
 
 }  // namespace btfvq::server

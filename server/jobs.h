@@ -9,6 +9,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -34,6 +35,9 @@ class JobQueue {
   // Jobs left running by a killed server go back to the queue; they continue from their checkpoints
   // (DataDir::work), and the checkpoints of jobs that are not queued are removed.
   void requeue_interrupted();
+  // Work that an idle worker does every `every` (the sweep of abandoned uploads): between jobs, one
+  // worker at a time, so that it needs no thread of its own. Set before start().
+  void set_maintenance(std::function<void()> task, std::chrono::milliseconds every);
   void start(int workers);
   // Stops the workers; running jobs are interrupted and go back to 'queued' for the next start.
   void stop();
@@ -64,6 +68,8 @@ class JobQueue {
   };
 
   void worker_loop();
+  bool maintenance_due() const;  // under mutex_
+  void maintain();
   std::optional<JobRecord> next_job();    // under mutex_
   JobRecord begin_running(JobRecord job);  // under mutex_
   void end_running(const JobRecord& job);
@@ -92,6 +98,10 @@ class JobQueue {
   std::atomic<bool> stopping_{false};
   uint64_t revision_ = 0;
   std::map<std::string, double> stage_seconds_;
+  std::function<void()> maintenance_;
+  std::chrono::milliseconds maintenance_every_{0};
+  std::chrono::steady_clock::time_point next_maintenance_;
+  bool maintaining_ = false;
 };
 
 }  // namespace btfvq::server

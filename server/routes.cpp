@@ -96,8 +96,9 @@ void HttpServer::install_routes() {
 
   // ---- uploads
   s.Put(R"(/v1/uploads/([^/]+))", [&svc](const Request& req, Response& res, const ContentReader& reader) {
-    const auto sink = svc.begin_upload(req.matches[1], header_number(req, "Content-Length"));
-    send_json(res, receive_upload(req, reader, res, *sink), 201);
+    const json reply =
+        receive_upload(req, reader, res, [&] { return svc.begin_upload(req.matches[1], upload_request(req)); });
+    send_json(res, reply, reply["state"] == "complete" ? 201 : 200);
   });
   s.Get(R"(/v1/uploads/([^/]+))", [&svc](const Request& req, Response& res) {
     send_json(res, svc.upload(req.matches[1]));

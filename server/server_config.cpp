@@ -28,6 +28,7 @@ ServerConfig load_server_config(const ServerFlags& flags) {
   c.service.input_root = d.string("input_root");
   c.service.max_upload_bytes = uint64_t(d.number("max_upload_bytes", 1, 1e15));
   c.service.max_expanded_bytes = uint64_t(d.number("max_expanded_bytes", 1, 1e16));
+  c.service.upload_abandon_after_s = double(d.integer("upload_abandon_after_s", 1, 366 * 86400));
   c.http.max_request_bytes = uint64_t(d.number("max_request_bytes", 1024, 1 << 30));
   auto& k = c.http.connections;
   // A config written before the connection limits names the old fixed pool: say what replaced it

@@ -11,8 +11,10 @@ namespace fs = std::filesystem;
 // Checked and made ready before the store opens in it.
 ServiceConfig Service::prepared(ServiceConfig config) {
   if (config.workers < 1) throw ConfigError("workers must be at least 1");
+  if (!(config.upload_abandon_after_s > 0)) throw ConfigError("upload_abandon_after_s must be positive");
   const DataDir data(config.data_dir);
   fs::create_directories(data.uploads());
+  fs::create_directories(data.partial_uploads());
   fs::create_directories(data.databases());
   if (!config.input_root.empty()) {
     std::error_code ec;
@@ -40,6 +42,13 @@ void Service::start() {
   catalogue_.remove_unlisted();
   uploads_.remove_unlisted();
   started_ = true;
+  // Abandoned uploads are swept by a worker between jobs (no thread of their own), every half of the
+  // abandon time but at least once a minute: one is gone that much after it is due, unless every
+  // worker is busy with a job then.
+  const std::chrono::duration<double> abandon(config_.upload_abandon_after_s);
+  jobs_.set_maintenance([this, abandon] { uploads_.remove_abandoned(abandon); },
+                        std::chrono::duration_cast<std::chrono::milliseconds>(
+                            std::min<std::chrono::duration<double>>(abandon / 2, std::chrono::seconds(60))));
   jobs_.start(config_.workers);
   spdlog::info("service started: data {}, {} worker(s)", config_.data_dir.string(), config_.workers);
 }

@@ -31,6 +31,8 @@ struct ServiceConfig {
   uint64_t max_upload_bytes = uint64_t(4) << 30;
   uint64_t max_expanded_bytes = uint64_t(16) << 30;
   int workers = 1;
+  // A resumable upload that receives no piece for this long is removed (upload_abandon_after_s).
+  double upload_abandon_after_s = 86400;
 };
 
 class Service {
@@ -57,8 +59,8 @@ class Service {
   uint64_t revision() { return jobs_.revision(); }
   bool stopping() const { return jobs_.stopping(); }
 
-  std::unique_ptr<UploadSink> begin_upload(const std::string& id, std::optional<uint64_t> declared_size) {
-    return uploads_.begin(id, declared_size);
+  std::unique_ptr<UploadSink> begin_upload(const std::string& id, const UploadRequest& request) {
+    return uploads_.begin(id, request);
   }
   nlohmann::json upload(const std::string& id) { return uploads_.info(id); }
 

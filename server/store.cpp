@@ -2,19 +2,35 @@
 
 #include <sqlite3.h>
 
+#include <cerrno>
+#include <cstring>
+
 #include <btfvq/error.h>
+#include "pipeline/util/atomic_file.h"
 
 namespace btfvq::server {
 namespace {
 
 using nlohmann::json;
 
+// A failed SQLite call as the error the rest of the server knows: a full disk is the NoSpaceError
+// of the file writers (SQLite says SQLITE_FULL, or an I/O error whose errno is ENOSPC), so a job
+// and an HTTP client see the same "no_space" whichever file it was.
+[[noreturn]] void throw_sqlite(sqlite3* db, int rc, const std::string& what) {
+  const int err = sqlite3_system_errno(db);
+  const std::string message = what + ": " + sqlite3_errmsg(db);
+  if ((rc & 0xff) == SQLITE_FULL || is_no_space(err))
+    throw NoSpaceError(message + ": " + std::strerror(err == EDQUOT ? EDQUOT : ENOSPC) +
+                       (err == EDQUOT ? " (EDQUOT)" : " (ENOSPC)"));
+  throw Error("store", message);
+}
+
 // A prepared statement with positional binding; finalised on scope exit.
 class Statement {
  public:
   Statement(sqlite3* db, const std::string& sql) : db_(db) {
-    if (sqlite3_prepare_v2(db, sql.c_str(), -1, &stmt_, nullptr) != SQLITE_OK)
-      throw Error("store", std::string("sqlite prepare: ") + sqlite3_errmsg(db) + " in: " + sql);
+    if (const int rc = sqlite3_prepare_v2(db, sql.c_str(), -1, &stmt_, nullptr); rc != SQLITE_OK)
+      throw_sqlite(db, rc, "sqlite prepare of '" + sql + "'");
   }
   ~Statement() { sqlite3_finalize(stmt_); }
   Statement& bind(const std::string& v) {
@@ -34,7 +50,7 @@ class Statement {
     const int rc = sqlite3_step(stmt_);
     if (rc == SQLITE_ROW) return true;
     if (rc == SQLITE_DONE) return false;
-    throw Error("store", std::string("sqlite step: ") + sqlite3_errmsg(db_));
+    throw_sqlite(db_, rc, "sqlite step of '" + std::string(sqlite3_sql(stmt_)) + "'");
   }
   std::string text(int c) const {
     auto p = sqlite3_column_text(stmt_, c);
@@ -106,12 +122,8 @@ Store::Store(const std::string& sqlite_path) {
 Store::~Store() { sqlite3_close(db_); }
 
 void Store::exec(const std::string& sql) {
-  char* message = nullptr;
-  if (sqlite3_exec(db_, sql.c_str(), nullptr, nullptr, &message) != SQLITE_OK) {
-    const std::string m = message ? message : "unknown";
-    sqlite3_free(message);
-    throw Error("store", "sqlite: " + m + " in: " + sql);
-  }
+  if (const int rc = sqlite3_exec(db_, sql.c_str(), nullptr, nullptr, nullptr); rc != SQLITE_OK)
+    throw_sqlite(db_, rc, "sqlite exec of '" + sql + "'");
 }
 
 int64_t Store::insert_job(const JobRecord& j) {
@@ -217,7 +229,8 @@ void Store::publish(const VersionRecord& v, double finished) {
     j.step();
     exec("COMMIT");
   } catch (...) {
-    exec("ROLLBACK");
+    // SQLite may have rolled back by itself (it does on SQLITE_FULL); the error to report is the first.
+    if (!sqlite3_get_autocommit(db_)) sqlite3_exec(db_, "ROLLBACK", nullptr, nullptr, nullptr);
     throw;
   }
 }

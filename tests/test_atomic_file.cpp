@@ -2,6 +2,11 @@
 // new, never a part, and a failure leaves nothing behind.
 #include <doctest/doctest.h>
 
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
+
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -87,4 +92,30 @@ TEST_CASE("a write that cannot happen is an io Error naming the target, and chan
     CHECK(std::string(e.what()).find(target.string()) != std::string::npos);
   }
   CHECK(entries(dir) == 0);
+}
+
+TEST_CASE("a full disk is a NoSpaceError whose message names ENOSPC; other failures stay io Errors") {
+  // /dev/full refuses every write with ENOSPC, as a full file system does.
+  const int fd = ::open("/dev/full", O_WRONLY | O_CLOEXEC);
+  REQUIRE_MESSAGE(fd >= 0, "/dev/full is needed");
+  const std::string bytes(100000, 'x');
+  try {
+    write_all(fd, bytes.data(), bytes.size(), "/some/db.btfdb");
+    FAIL("/dev/full accepted the bytes");
+  } catch (const NoSpaceError& e) {
+    CHECK(e.code() == "no_space");
+    const std::string m = e.what();
+    CHECK(m.find("/some/db.btfdb") != std::string::npos);
+    CHECK(m.size() >= 32);
+    CHECK(m.substr(m.size() - 32) == "No space left on device (ENOSPC)");
+  }
+  ::close(fd);
+  CHECK_THROWS_AS(throw_write_error("x", EDQUOT), NoSpaceError);
+  try {
+    throw_write_error("x", EACCES);
+  } catch (const NoSpaceError&) {
+    FAIL("EACCES is not a full disk");
+  } catch (const Error& e) {
+    CHECK(e.code() == "io");
+  }
 }

@@ -157,30 +157,18 @@ std::string read_all(const std::string& path) {
 }
 
 // Appends and makes durable before returning: a tile is done only once its record is on disk.
+// Failures are atomic_file's errors (a full disk is a NoSpaceError naming ENOSPC).
 void append_durably(const std::string& path, const std::string& bytes) {
   const int fd = ::open(path.c_str(), O_WRONLY | O_APPEND | O_CREAT | O_CLOEXEC, 0644);
-  auto fail = [&](int err) {
-    const std::string reason = err == ENOSPC ? "No space left on device (ENOSPC)" : std::strerror(err);
-    throw Error(err == ENOSPC ? "no_space" : "io", "cannot write the checkpoint '" + path + "': " + reason);
-  };
-  if (fd < 0) fail(errno);
-  size_t at = 0;
-  while (at < bytes.size()) {
-    const ssize_t n = ::write(fd, bytes.data() + at, bytes.size() - at);
-    if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) {
-      const int err = n < 0 ? errno : EIO;
-      ::close(fd);
-      fail(err);
-    }
-    at += size_t(n);
-  }
-  if (::fdatasync(fd) != 0) {
-    const int err = errno;
+  if (fd < 0) throw_write_error(path, errno);
+  try {
+    write_all(fd, bytes.data(), bytes.size(), path);
+    if (::fdatasync(fd) != 0) throw_write_error(path, errno);
+  } catch (...) {
     ::close(fd);
-    fail(err);
+    throw;
   }
-  if (::close(fd) != 0) fail(errno);
+  if (::close(fd) != 0) throw_write_error(path, errno);
 }
 
 }  // namespace

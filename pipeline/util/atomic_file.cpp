@@ -16,15 +16,14 @@ namespace fs = std::filesystem;
 
 namespace {
 
-std::string reason(int err) { return std::strerror(err); }
-
 // fsync of one file or folder; returns errno or 0. A folder that cannot be opened for reading is
-// not an error (some file systems refuse): the rename is then as durable as they allow.
+// not an error (some file systems refuse): the rename is then as durable as they allow. A close
+// can report a failed write-back (ENOSPC on NFS), so it counts too.
 int sync_one(const fs::path& p, bool folder) {
   const int fd = ::open(p.c_str(), (folder ? O_RDONLY | O_DIRECTORY : O_RDONLY) | O_CLOEXEC);
   if (fd < 0) return folder ? 0 : errno;
-  const int rc = ::fsync(fd) == 0 ? 0 : errno;
-  ::close(fd);
+  int rc = ::fsync(fd) == 0 ? 0 : errno;
+  if (::close(fd) != 0 && !rc && errno != EINTR) rc = errno;
   return (rc == EINVAL || rc == EROFS) ? 0 : rc;
 }
 
@@ -37,6 +36,24 @@ int sync_tree(const fs::path& p) {
 }
 
 }  // namespace
+
+void throw_write_error(const std::string& path, int err) {
+  const std::string what = "cannot write '" + path + "': " + std::strerror(err);
+  if (err == ENOSPC) throw NoSpaceError(what + " (ENOSPC)");
+  if (err == EDQUOT) throw NoSpaceError(what + " (EDQUOT)");
+  throw Error("io", what);
+}
+
+void write_all(int fd, const void* data, size_t size, const std::string& path) {
+  const auto* p = static_cast<const uint8_t*>(data);
+  for (size_t done = 0; done < size;) {
+    const ssize_t n = ::write(fd, p + done, size - done);
+    if (n < 0 && errno == EINTR) continue;
+    // A write that returns 0 for a non-empty buffer makes no progress; a full disk is the usual cause.
+    if (n <= 0) throw_write_error(path, n < 0 ? errno : ENOSPC);
+    done += size_t(n);
+  }
+}
 
 AtomicFile::AtomicFile(const std::string& target) : target_(target) {
   static std::atomic<unsigned> counter{0};
@@ -65,7 +82,7 @@ void AtomicFile::commit() {
 }
 
 void publish_file(const std::string& temp, const std::string& target_path) {
-  auto fail = [&](int err) { throw Error("io", "cannot write '" + target_path + "': " + reason(err)); };
+  auto fail = [&](int err) { throw_write_error(target_path, err); };
   if (int rc = sync_tree(temp)) fail(rc);
   std::error_code ec;
   const fs::path target(target_path);
@@ -83,27 +100,22 @@ void publish_file(const std::string& temp, const std::string& target_path) {
   } else if (::rename(temp.c_str(), target.c_str()) != 0) {
     fail(errno);
   }
+  // The rename is done: a folder that cannot be synced only makes it less durable, and failing
+  // now would report an error for a file that is already in place.
   sync_one(fs::absolute(target).parent_path(), true);
 }
 
 void write_file_atomically(const std::string& path, const void* data, size_t size) {
   AtomicFile file(path);
   const int fd = ::open(file.temp_path().c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) throw Error("io", "cannot write '" + path + "': " + reason(errno));
-  const auto* p = static_cast<const uint8_t*>(data);
-  size_t done = 0;
-  int err = 0;
-  while (done < size) {
-    const ssize_t n = ::write(fd, p + done, size - done);
-    if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) {
-      err = n < 0 ? errno : EIO;
-      break;
-    }
-    done += size_t(n);
+  if (fd < 0) throw_write_error(path, errno);
+  try {
+    write_all(fd, data, size, path);
+  } catch (...) {
+    ::close(fd);
+    throw;  // `file` removes the temporary
   }
-  if (::close(fd) != 0 && !err) err = errno;
-  if (err) throw Error("io", "cannot write '" + path + "': " + reason(err));
+  if (::close(fd) != 0 && errno != EINTR) throw_write_error(path, errno);
   file.commit();
 }
 
