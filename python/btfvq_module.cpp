@@ -369,9 +369,8 @@ struct PyMaterial {
   BtfMaterial mat;
 };
 
-// Evaluation: the batch decoder on the current compute device (OpenCL when in use) when it runs
-// there, else BtfMaterial::evaluate per query over every core (Decoder::decode_reference is one
-// thread; this is the same per-query code in parallel).
+// Evaluation: the batch decoder on the current compute device (OpenCL when in use; on the C++ path
+// Decoder::evaluate per query, what BtfMaterial::evaluate calls, over every core).
 py::array_t<float> evaluate(const PyMaterial& m, const py::object& uv_o, const py::object& light_o, const py::object& view_o) {
   const Rows uv = rows_of(uv_o, "uv", {2});
   const Rows light = rows_of(light_o, "light", {3, 2});
@@ -380,31 +379,12 @@ py::array_t<float> evaluate(const PyMaterial& m, const py::object& uv_o, const p
   py::array_t<float> out = result<float>(b, 3);
   float* dst = out.mutable_data();
   without_gil(nullptr, [&] {
-    const size_t n = b.n;
     const uint32_t index = uint32_t(m.mat.index());
-    if (ComputeDevice::get().uses_opencl()) {
-      std::vector<DecodeQuery> queries(n);
-      parallel_for(0, n, [&](size_t first, size_t last) {
-        for (size_t i = first; i < last; ++i) {
-          const double* t = uv.row(i);
-          queries[i] = {index, m.mat.texel_x(t[0]), m.mat.texel_y(t[1]), direction_of(light, i), direction_of(view, i)};
-        }
-      });
-      const std::vector<Rgb> rgb = m.db.decoder().decode(queries);
-      parallel_for(0, n, [&](size_t first, size_t last) {
-        std::memcpy(dst + 3 * first, rgb.data() + first, (last - first) * sizeof(Rgb));
-      });
-    } else {
-      const Decoder& decoder = m.db.decoder();
-      parallel_for(0, n, [&](size_t first, size_t last) {
-        for (size_t i = first; i < last; ++i) {
-          const double* t = uv.row(i);
-          const Rgb c = decoder.evaluate(index, m.mat.texel_x(t[0]), m.mat.texel_y(t[1]), direction_of(light, i),
-                                         direction_of(view, i));
-          std::memcpy(dst + 3 * i, &c, sizeof c);
-        }
-      });
-    }
+    // Straight from the arrays into the result: no query vector, no second copy of the values.
+    m.db.decoder().decode(b.n, [&](size_t i) {
+      const double* t = uv.row(i);
+      return DecodeQuery{index, m.mat.texel_x(t[0]), m.mat.texel_y(t[1]), direction_of(light, i), direction_of(view, i)};
+    }, reinterpret_cast<Rgb*>(dst));
     return 0;
   });
   return out;

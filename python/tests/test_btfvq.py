@@ -9,6 +9,7 @@ import os
 import struct
 import subprocess
 import sys
+import time
 import zipfile
 import zlib
 from pathlib import Path
@@ -395,3 +396,28 @@ def test_render_sphere_example_writes_a_png(tmp_path):
     assert np.all(rows[:, 0] == 0)
     img = rows[:, 1:].reshape(64, 64, 3)
     assert img[32, 32].mean() > 20 and np.all(img[0, 0] == img[0, 1])
+
+
+def test_compare_materials_example_writes_a_png(tmp_path):
+    out = tmp_path / "compare.png"
+    r = subprocess.run([sys.executable, str(SOURCE / "examples" / "compare_materials.py"), "--size", "32",
+                        "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    data = out.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and struct.unpack(">II", data[16:24]) == (4 * 32, 2 * 32)
+    assert "alu" in r.stdout and "proposte" in r.stdout
+
+
+def test_calls_release_the_gil():
+    import threading
+    m = btfvq.open(BTFBASE / "alu")["alu"]
+    q = random_queries(5, 3000)
+    done = threading.Event()
+    worker = threading.Thread(target=lambda: (m.albedo(q["uv"], q["view"]), done.set()))
+    ticks = 0
+    worker.start()
+    while not done.is_set():  # Python code runs while the albedo call works (about 2700 / s per core)
+        ticks += 1
+        time.sleep(0.001)
+    worker.join()
+    assert ticks > 20
