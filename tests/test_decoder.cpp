@@ -282,3 +282,25 @@ TEST_CASE("decode() follows the configured device, and a reconfigured device get
   const auto second = dec.decode(queries);  // new context: the code-books are uploaded again
   for (size_t i = 0; i < queries.size(); ++i) CHECK(second[i].g == first[i].g);
 }
+
+TEST_CASE("decode(n, query, out) gives decode(queries)'s values on both devices, and NotFoundError past the end") {
+  const Database db = alu();
+  const Decoder dec(db);
+  const auto queries = random_queries(db, 70000, 17);  // more than one part of the packing loop
+  const auto source = [&](size_t i) { return queries[i]; };
+  for (const char* device : {"auto", "cpu-reference"}) {
+    ComputeDevice::configure(device);
+    const auto expect = dec.decode(queries);
+    std::vector<Rgb> got(queries.size(), Rgb{-1, -1, -1});
+    dec.decode(queries.size(), source, got.data());
+    size_t same = 0;
+    for (size_t i = 0; i < queries.size(); ++i)
+      same += got[i].r == expect[i].r && got[i].g == expect[i].g && got[i].b == expect[i].b;
+    CHECK_MESSAGE(same == queries.size(), device);
+    auto bad = queries;
+    bad[4000].material = 7;
+    CHECK_THROWS_AS(dec.decode(bad.size(), [&](size_t i) { return bad[i]; }, got.data()), NotFoundError);
+  }
+  ComputeDevice::configure("auto");
+  REQUIRE(ComputeDevice::get().uses_opencl());
+}

@@ -64,3 +64,24 @@ int main(int argc, char** argv) {
   CHECK(b == doctest::Approx(59.21).epsilon(0.05 / 59.21));
   CHECK(log.find("not found:") != std::string::npos);
 }
+
+TEST_CASE("the install holds the Python module, importable by Debian's python3 from the install alone") {
+  const fs::path build_python = test::bin_dir().parent_path() / "python";
+  if (!fs::exists(build_python)) return;  // configured with -DBTFVQ_PYTHON=OFF
+  const fs::path prefix = test::scratch_dir("install-python") / "prefix";
+  std::string log;
+  REQUIRE_MESSAGE(test::run_command("cmake --install '" + test::bin_dir().parent_path().string() + "' --prefix '" +
+                                        prefix.string() + "'", &log) == 0, log);
+  fs::path module_dir;
+  for (const std::string& f : files_below(prefix / "lib"))
+    if (f.find("dist-packages/btfvq.") != std::string::npos) module_dir = prefix / "lib" / fs::path(f).parent_path();
+  REQUIRE_MESSAGE(!module_dir.empty(), "no btfvq module below " << (prefix / "lib").string());
+  // lib/python3.X/dist-packages: the prefix /usr/local gives a folder in Debian's sys.path.
+  CHECK(module_dir.parent_path().filename().string().rfind("python3.", 0) == 0);
+  const std::string cmd = "cd / && PYTHONPATH='" + module_dir.string() + "' /usr/bin/python3 -c \"import btfvq; "
+                          "m = btfvq.open('" + (test::testdata_dir() / "btfbase" / "alu").string() +
+                          "')['alu']; print(btfvq.__file__); print(m.width, m.height)\"";
+  REQUIRE_MESSAGE(test::run_command(cmd, &log) == 0, log);
+  CHECK(log.find(module_dir.string()) != std::string::npos);
+  CHECK(log.find("64 64") != std::string::npos);
+}

@@ -55,11 +55,15 @@ class BtfMaterial {
   // Integral of evaluate() x cos(theta_i) over the hemisphere of lights (paper eq. 6), per channel.
   Rgb albedo(double u, double v, const Vec3& view) const;
 
+  // The texel column / row a texture coordinate falls in (floor(u W), floor(v H), wrapped; 0 for a
+  // non-finite coordinate): what the calls above use, so that batch callers building DecodeQuery
+  // for Decoder::decode (python/, the batch layers) address the same texels.
+  int texel_x(double u) const;
+  int texel_y(double v) const;
+
  private:
   friend class BtfDatabase;
   BtfMaterial(std::shared_ptr<const BtfDatabaseState> state, size_t index) : state_(std::move(state)), index_(index) {}
-  int texel_x(double u) const;
-  int texel_y(double v) const;
 
   std::shared_ptr<const BtfDatabaseState> state_;
   size_t index_ = 0;

@@ -329,17 +329,36 @@ void split_over_cores(size_t n, F&& f) {
 }  // namespace
 
 std::vector<Rgb> Decoder::decode_opencl(const std::vector<DecodeQuery>& queries) const {
-  auto& dev = ComputeDevice::get();
-  if (!dev.uses_opencl()) throw DeviceError("decode_opencl: OpenCL is not in use (" + dev.description() + ")");
   for (const auto& q : queries) check_material(q.material);
   std::vector<Rgb> out(queries.size());
-  if (queries.empty()) return out;
+  decode_opencl_into(queries.size(), [&](size_t i) { return queries[i]; }, out.data());
+  return out;
+}
+
+void Decoder::decode(size_t n, const QuerySource& query, Rgb* out) const {
+  if (ComputeDevice::get().backend() == Backend::OpenCL) {
+    decode_opencl_into(n, query, out);
+    return;
+  }
+  parallel_for(0, n, [&](size_t first, size_t last) {
+    for (size_t i = first; i < last; ++i) {
+      const DecodeQuery q = query(i);
+      out[i] = evaluate(q.material, q.x, q.y, q.light, q.view);
+    }
+  });
+}
+
+void Decoder::decode_opencl_into(size_t count, const QuerySource& query, Rgb* out) const {
+  auto& dev = ComputeDevice::get();
+  if (!dev.uses_opencl()) throw DeviceError("decode_opencl: OpenCL is not in use (" + dev.description() + ")");
+  if (count == 0) return;
+  const size_t materials = db_.materials.size();
   std::lock_guard<std::mutex> lock(batch_mutex_);
   DeviceBuffers& bufs = device_buffers();
   // Chunks bound the query buffers for very large batches; each is padded to whole work-groups of
   // kQueriesPerItem-wide work-items with queries that decode to zero.
   constexpr size_t kChunk = size_t(1) << 20, kPad = 1024, kQueriesPerItem = 16;  // 16: DECODE_WIDTH of decode.cl
-  const size_t capacity = std::min(kChunk, round_up(queries.size(), kPad));
+  const size_t capacity = std::min(kChunk, round_up(count, kPad));
   opencl_call("decode kernel", [&] {
     cl::CommandQueue& queue = dev.queue();
     if (bufs.capacity < capacity) {
@@ -355,8 +374,8 @@ std::vector<Rgb> Decoder::decode_opencl(const std::vector<DecodeQuery>& queries)
     cl::Kernel& k = bufs.kernel;
     int arg = 18;
     for (cl::Buffer* b : {&bufs.texels, &bufs.theta_i, &bufs.phi_i, &bufs.theta_v, &bufs.phi_v, &bufs.rgb}) k.setArg(arg++, *b);
-    for (size_t first = 0; first < queries.size(); first += kChunk) {
-      const size_t n = std::min(kChunk, queries.size() - first), padded = round_up(n, kPad);
+    for (size_t first = 0; first < count; first += kChunk) {
+      const size_t n = std::min(kChunk, count - first), padded = round_up(n, kPad);
       {
         const cl_map_flags w = CL_MAP_WRITE_INVALIDATE_REGION;
         Mapped<cl_int> texel(queue, bufs.texels, w, padded);
@@ -364,7 +383,8 @@ std::vector<Rgb> Decoder::decode_opencl(const std::vector<DecodeQuery>& queries)
         Mapped<cl_float> tv(queue, bufs.theta_v, w, padded), pv(queue, bufs.phi_v, w, padded);
         split_over_cores(n, [&](size_t begin, size_t end) {
           for (size_t i = begin; i < end; ++i) {
-            const DecodeQuery& q = queries[first + i];
+            const DecodeQuery q = query(first + i);
+            if (q.material >= materials) check_material(q.material);  // throws NotFoundError
             texel.get()[i] = texel_code(db_.materials[q.material], bufs.p6_offset[q.material], q.x, q.y);
             ti.get()[i] = float(q.light.theta);
             pi.get()[i] = float(q.light.phi);
@@ -385,7 +405,6 @@ std::vector<Rgb> Decoder::decode_opencl(const std::vector<DecodeQuery>& queries)
       });
     }
   });
-  return out;
 }
 
 }  // namespace btfvq

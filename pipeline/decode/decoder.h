@@ -9,6 +9,7 @@
 // the compute device (kernels/decode.cl) with the code-books uploaded once per Decoder.
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <vector>
@@ -49,6 +50,12 @@ class Decoder {
   Rgb evaluate_p4(uint32_t p4_row, bool hdr, const Direction& light, const Direction& view) const;
 
   std::vector<Rgb> decode(const std::vector<DecodeQuery>& queries) const;
+  // The same batch without a query vector: query(i) gives query i (called from several threads at
+  // once, each i once) and its value goes to out[i], out holding n values. On the C++ reference path
+  // this is evaluate() per query over every core (pipeline/util/parallel.h). For callers whose
+  // queries are in arrays of their own (python/: NumPy arrays), so that nothing is copied twice.
+  using QuerySource = std::function<DecodeQuery(size_t)>;
+  void decode(size_t n, const QuerySource& query, Rgb* out) const;
   // The plain C++ reference of the batch kernel (evaluate() per query).
   std::vector<Rgb> decode_reference(const std::vector<DecodeQuery>& queries) const;
   // The OpenCL kernel kernels/decode.cl; throws DeviceError when OpenCL is not in use. The angles
@@ -59,6 +66,7 @@ class Decoder {
  private:
   struct DeviceBuffers;
   void check_material(size_t material) const;
+  void decode_opencl_into(size_t n, const QuerySource& query, Rgb* out) const;
   DeviceBuffers& device_buffers() const;
 
   const Database& db_;
