@@ -40,6 +40,7 @@ struct ChannelComponent {
 constexpr std::array<ChannelComponent, 7> kChannels{{{0, 0}, {1, 0}, {2, 0}, {3, 1}, {4, 1}, {3, 2}, {4, 2}}};
 // They are filtered four at a time as complex images: (real, imaginary) channel indices, -1 = zero.
 constexpr std::array<std::array<int, 2>, 4> kPacking{{{0, 1}, {2, -1}, {3, 5}, {4, 6}}};
+constexpr size_t kTile = 16;  // texels per cache line of floats
 
 using Mat3 = std::array<double, 9>;
 
@@ -324,27 +325,38 @@ class BtfCielab {
         if (mark[b]) needed.push_back(uint32_t(b));
     }
     const bool hdr = samples_[0]->is_hdr();
-    parallel_for(0, texels_, [&](size_t first, size_t last) {
-      std::vector<float> lab(nl * 3);
-      for (size_t t = first; t < last; ++t)
+    // Texels go in tiles of kTile, so that every filtered image is written a cache line at a time.
+    const size_t tiles = (texels_ + kTile - 1) / kTile;
+    parallel_for(0, tiles, [&](size_t first, size_t last) {
+      std::vector<float> lab(nl * 3 * kTile);  // [light][channel][texel of the tile]
+      float rgb[3];
+      for (size_t tile = first; tile < last; ++tile) {
+        const size_t t0 = tile * kTile, n = std::min(kTile, texels_ - t0);
         for (size_t s = 0; s < 2; ++s) {
           const MeasuredSample& m = *samples_[s];
           for (size_t v = 0; v < nv; ++v) {
-            const size_t base = (t * pairs + v * nl) * 3;
-            for (uint32_t b : needed) {
-              if (hdr) colour_.from_hdr(m.hdr_data().data() + base + 3 * b, &lab[3 * b]);
-              else colour_.from_ldr(m.ldr_data().data() + base + 3 * b, &lab[3 * b]);
+            for (size_t i = 0; i < n; ++i) {
+              const size_t base = ((t0 + i) * pairs + v * nl) * 3;
+              for (uint32_t b : needed) {
+                if (hdr) colour_.from_hdr(m.hdr_data().data() + base + 3 * b, rgb);
+                else colour_.from_ldr(m.ldr_data().data() + base + 3 * b, rgb);
+                for (size_t ch = 0; ch < 3; ++ch) lab[(3 * b + ch) * kTile + i] = rgb[ch];
+              }
             }
             for (size_t l = l0; l < l1; ++l)
               for (size_t c = 0; c < kChannels.size(); ++c) {
                 const auto& row = light_kernel_[size_t(kChannels[c].component)].rows[l];
                 const size_t ch = size_t(kChannels[c].channel);
-                float acc = 0;
-                for (const auto& [b, g] : row) acc += g * lab[3 * b + ch];
-                image(l - l0, v, s, c)[t] = acc;
+                float acc[kTile] = {};
+                for (const auto& [b, g] : row) {
+                  const float* x = &lab[(3 * b + ch) * kTile];
+                  for (size_t i = 0; i < kTile; ++i) acc[i] += g * x[i];
+                }
+                std::copy(acc, acc + n, image(l - l0, v, s, c) + t0);
               }
           }
         }
+      }
     }, parallel_);
   }
 
