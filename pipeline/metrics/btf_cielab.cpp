@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <complex>
+#include <cstring>
 
 #include <btfvq/error.h>
 #include "pipeline/metrics/fft.h"
@@ -76,20 +77,29 @@ class ColourModel {
     for (int i = 0; i < 256; ++i) table_[size_t(i)] = float(srgb8_to_linear(float(i)));
   }
 
-  void from_ldr(const uint8_t* rgb, float* lab) const {
-    from_linear(table_[rgb[0]], table_[rgb[1]], table_[rgb[2]], lab);
-  }
-  void from_hdr(const float* rgb, float* lab) const {
-    from_linear(float(srgb8_to_linear(display_value(rgb[0], Dynamic::HDR))),
-                float(srgb8_to_linear(display_value(rgb[1], Dynamic::HDR))),
-                float(srgb8_to_linear(display_value(rgb[2], Dynamic::HDR))), lab);
+  // Linear value of an 8-bit code.
+  float linear(uint8_t v) const { return table_[v]; }
+  // HDR: the tone-mapped display value, linearised as an LDR code would be.
+  static float linear_hdr(float v) { return float(srgb8_to_linear(display_value(v, Dynamic::HDR))); }
+
+  // n colours given as linear r, g, b arrays to l, alpha, beta arrays (vectorisable).
+  void from_linear(size_t n, const float* r, const float* g, const float* b, float* l, float* alpha, float* beta) const {
+    const float* m = rgb_to_lms_.data();
+    for (size_t i = 0; i < n; ++i) {
+      const float L = log2_approx(std::max(m[0] * r[i] + m[1] * g[i] + m[2] * b[i], 0.0f) + kDark);
+      const float M = log2_approx(std::max(m[3] * r[i] + m[4] * g[i] + m[5] * b[i], 0.0f) + kDark);
+      const float S = log2_approx(std::max(m[6] * r[i] + m[7] * g[i] + m[8] * b[i], 0.0f) + kDark);
+      l[i] = (L + M + S) * float(1 / kSqrt3);
+      alpha[i] = (L + M - 2 * S) * float(1 / kSqrt6);
+      beta[i] = (L - M) * float(1 / kSqrt2);
+    }
   }
 
   CieLab to_lab(float l, float a, float b) const {
     const double ll = l / kSqrt3, aa = a / kSqrt6, bb = b / kSqrt2;
-    const double L = std::max(std::exp2(ll + aa + bb) - double(kDark), 0.0);
-    const double M = std::max(std::exp2(ll + aa - bb) - double(kDark), 0.0);
-    const double S = std::max(std::exp2(ll - 2 * aa) - double(kDark), 0.0);
+    const double L = std::max(double(std::exp2(float(ll + aa + bb))) - double(kDark), 0.0);
+    const double M = std::max(double(std::exp2(float(ll + aa - bb))) - double(kDark), 0.0);
+    const double S = std::max(double(std::exp2(float(ll - 2 * aa))) - double(kDark), 0.0);
     const Mat3& m = lms_to_xyz_;
     return xyz_to_lab(m[0] * L + m[1] * M + m[2] * S, m[3] * L + m[4] * M + m[5] * S, m[6] * L + m[7] * M + m[8] * S);
   }
@@ -97,14 +107,20 @@ class ColourModel {
  private:
   static constexpr double kSqrt2 = 1.4142135623730951, kSqrt3 = 1.7320508075688772, kSqrt6 = 2.449489742783178;
 
-  void from_linear(float r, float g, float b, float* lab) const {
-    const float* m = rgb_to_lms_.data();
-    const float L = std::log2(std::max(m[0] * r + m[1] * g + m[2] * b, 0.0f) + kDark);
-    const float M = std::log2(std::max(m[3] * r + m[4] * g + m[5] * b, 0.0f) + kDark);
-    const float S = std::log2(std::max(m[6] * r + m[7] * g + m[8] * b, 0.0f) + kDark);
-    lab[0] = float((L + M + S) / kSqrt3);
-    lab[1] = float((L + M - 2 * S) / kSqrt6);
-    lab[2] = float((L - M) / kSqrt2);
+  // log2 of a positive normal float to 5e-8: exponent, mantissa in [sqrt 1/2, sqrt 2), and
+  // 2 atanh((m - 1) / (m + 1)) / ln 2 to the t^7 term. Inline and branch-free, unlike log2f.
+  static float log2_approx(float x) {
+    uint32_t bits;
+    std::memcpy(&bits, &x, sizeof bits);
+    int e = int(bits >> 23) - 127;
+    const uint32_t mb = (bits & 0x7FFFFFu) | 0x3F800000u;
+    float m;
+    std::memcpy(&m, &mb, sizeof m);
+    const bool big = m > 1.41421356f;
+    m = big ? 0.5f * m : m;
+    e += big ? 1 : 0;
+    const float t = (m - 1.0f) / (m + 1.0f), t2 = t * t;
+    return float(e) + t * (2.88539008f + t2 * (0.961796694f + t2 * (0.577078016f + t2 * 0.412198583f)));
   }
 
   std::array<float, 9> rgb_to_lms_{};
@@ -329,19 +345,25 @@ class BtfCielab {
     const size_t tiles = (texels_ + kTile - 1) / kTile;
     parallel_for(0, tiles, [&](size_t first, size_t last) {
       std::vector<float> lab(nl * 3 * kTile);  // [light][channel][texel of the tile]
-      float rgb[3];
+      std::vector<float> rgb(needed.size() * 3 * kTile);
       for (size_t tile = first; tile < last; ++tile) {
         const size_t t0 = tile * kTile, n = std::min(kTile, texels_ - t0);
         for (size_t s = 0; s < 2; ++s) {
           const MeasuredSample& m = *samples_[s];
           for (size_t v = 0; v < nv; ++v) {
+            // Gather the tile's linear colours light by light, then convert them kTile at a time.
             for (size_t i = 0; i < n; ++i) {
               const size_t base = ((t0 + i) * pairs + v * nl) * 3;
-              for (uint32_t b : needed) {
-                if (hdr) colour_.from_hdr(m.hdr_data().data() + base + 3 * b, rgb);
-                else colour_.from_ldr(m.ldr_data().data() + base + 3 * b, rgb);
-                for (size_t ch = 0; ch < 3; ++ch) lab[(3 * b + ch) * kTile + i] = rgb[ch];
-              }
+              for (size_t k = 0; k < needed.size(); ++k)
+                for (size_t ch = 0; ch < 3; ++ch) {
+                  const size_t at = base + 3 * needed[k] + ch;
+                  rgb[(3 * k + ch) * kTile + i] = hdr ? ColourModel::linear_hdr(m.hdr_data()[at]) : colour_.linear(m.ldr_data()[at]);
+                }
+            }
+            for (size_t k = 0; k < needed.size(); ++k) {
+              const float* src = &rgb[3 * k * kTile];
+              float* dst = &lab[3 * needed[k] * kTile];
+              colour_.from_linear(kTile, src, src + kTile, src + 2 * kTile, dst, dst + kTile, dst + 2 * kTile);
             }
             for (size_t l = l0; l < l1; ++l)
               for (size_t c = 0; c < kChannels.size(); ++c) {
