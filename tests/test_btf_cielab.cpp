@@ -11,10 +11,14 @@
 #include <random>
 #include <vector>
 
+#include <fstream>
+#include <nlohmann/json.hpp>
+
 #include <btfvq/error.h>
 #include "pipeline/metrics/btf_cielab.h"
 #include "pipeline/metrics/fft.h"
 #include "pipeline/metrics/metrics.h"
+#include "support/test_paths.h"
 
 using namespace btfvq;
 
@@ -325,4 +329,32 @@ TEST_CASE("Samples of different geometry, or views with their own light lists, a
   lights[1].pop_back();
   const MeasuredSample c(4, 4, {{0, 0}, {15, 0}}, lights, Dynamic::LDR);
   CHECK_THROWS_AS(btf_cielab(c, c), InputError);
+}
+
+TEST_CASE("btfvq eval --metric btf-cielab adds its object to the JSON and leaves the rest as it was") {
+  const auto dir = test::scratch_dir("btf-cielab-eval");
+  const std::string cli = (test::bin_dir() / "btfvq").string();
+  const std::string zip = (dir / "l.zip").string(), db = (dir / "l.btfdb").string();
+  std::string out;
+  REQUIRE_MESSAGE(test::run_command(cli + " synth --preset leather --size 16 --seed 1 --out " + zip, &out) == 0, out);
+  REQUIRE_MESSAGE(test::run_command(cli + " compress " + zip + " --db " + db + " --name m", &out) == 0, out);
+  const std::string eval = cli + " eval " + db + " --material m --reference " + zip;
+  REQUIRE_MESSAGE(test::run_command(eval + " --json " + (dir / "plain.json").string(), &out) == 0, out);
+  CHECK(out.find("BTF-CIELab") == std::string::npos);
+  REQUIRE_MESSAGE(test::run_command(eval + " --metric btf-cielab:30,200 --json " + (dir / "cielab.json").string(), &out) == 0, out);
+  CHECK(out.find("BTF-CIELab:") != std::string::npos);
+  nlohmann::json plain = nlohmann::json::parse(std::ifstream(dir / "plain.json"));
+  nlohmann::json with = nlohmann::json::parse(std::ifstream(dir / "cielab.json"));
+  CHECK_FALSE(plain.contains("btf_cielab"));
+  REQUIRE(with.contains("btf_cielab"));
+  const nlohmann::json b = with["btf_cielab"];
+  with.erase("btf_cielab");
+  CHECK(with == plain);
+  CHECK(b["resolution"].get<double>() == 30);
+  CHECK(b["speed"].get<double>() == 200);
+  CHECK(b["mean"].get<double>() > 0);
+  CHECK(b["rms"].get<double>() >= b["mean"].get<double>());
+  CHECK(b["seconds"].get<double>() > 0);
+  CHECK(test::run_command(eval + " --metric btf-cielab:fast", &out) != 0);
+  CHECK(test::run_command(eval + " --metric psnr", &out) != 0);
 }
