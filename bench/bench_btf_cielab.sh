@@ -5,7 +5,7 @@
 #   btfvq synth --preset leather --size 256 --seed 1 --out leather256.zip
 #   btfvq compress leather256.zip --db leather256.btfdb --name m
 #   /usr/bin/time -v btfvq eval leather256.btfdb --material m --reference leather256.zip [--metric btf-cielab]
-# Each eval runs BTFVQ_CIELAB_REPEATS times (default 2), alternating, and the fastest of each is kept.
+# BTFVQ_CIELAB_REPEATS (default 2) runs with the metric, each between two without; the fastest of each is kept.
 # Usage (by bench/run.sh): bench_btf_cielab.sh --bin DIR --json OUT --scratch DIR [--quick (size 64)]
 # BTFVQ_CIELAB_SAMPLE / BTFVQ_CIELAB_DB name an existing zip and database to use instead.
 set -euo pipefail
@@ -32,8 +32,13 @@ db=${BTFVQ_CIELAB_DB:-$scratch/leather$size.btfdb}
 repeats=${BTFVQ_CIELAB_REPEATS:-2}
 rows="$scratch/cielab_rows.jsonl"
 : > "$rows"
-for r in $(seq 1 "$repeats"); do
-  for mode in plain cielab; do
+# plain, cielab, plain, cielab, ..., plain: every run with the metric between two without, so that
+# a change of the load on the shared machine shows in the plain runs.
+schedule=(plain)
+for r in $(seq 1 "$repeats"); do schedule+=(cielab plain); done
+r=0
+for mode in "${schedule[@]}"; do
+    [ $mode = plain ] && r=$((r + 1))
     extra=(); [ $mode = cielab ] && extra=(--metric btf-cielab)
     out="$scratch/eval.$mode.$r"
     echo "bench_btf_cielab: eval $mode (run $r)" >&2
@@ -53,7 +58,6 @@ print(json.dumps({"mode": mode, "run": int(run), "wall_s": seconds, "user_s": fl
                   "system_s": float(field("System time (seconds)")), "peak_rss_mb": int(field("Maximum resident set size (kbytes)")) / 1024,
                   "load_before": float(load), "eval": e}))
 PY
-  done
 done
 others=$(ps -eo pcpu,args --sort=-pcpu | awk 'NR > 1 && $1 > 5 {print $2}' | xargs -n1 basename 2>/dev/null | sort | uniq -c | awk '{print $2 " x" $1}' | paste -sd, - || true)
 python3 - "$rows" "$json" "$size" "$others" "$(nproc)" <<'PY'
@@ -68,7 +72,7 @@ md = [f"`btfvq eval` of synthetic leather {size} x {size} (`btfvq synth --preset
       "81 x 81 Bonn directions, compressed by `btfvq compress` at default settings), with and without "
       "`--metric btf-cielab` (default viewing condition: "
       f"{b['resolution']:.2f} texels per degree, {b['speed']:.0f} degrees per second), timed by `/usr/bin/time -v`; "
-      f"fastest of {len(rows) // 2} alternating runs each, Release -O3 -march=native build, 2 threads.", "",
+      f"fastest of {sum(r['mode'] == 'plain' for r in rows)} plain and {sum(r['mode'] == 'cielab' for r in rows)} BTF-CIELab runs (alternating), Release -O3 -march=native build, 2 threads.", "",
       "| eval | wall s | user + sys s | peak RSS MB | BTF-CIELab mean / std / RMS | BTF-CIELab s | light blocks | working MB |",
       "|---|---|---|---|---|---|---|---|",
       f"| plain | {p['wall_s']:.1f} | {p['user_s'] + p['system_s']:.1f} | {p['peak_rss_mb']:.0f} | | | | |",

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <chrono>
 #include <cmath>
 #include <complex>
@@ -82,10 +83,12 @@ class ColourModel {
   // HDR: the tone-mapped display value, linearised as an LDR code would be.
   static float linear_hdr(float v) { return float(srgb8_to_linear(display_value(v, Dynamic::HDR))); }
 
-  // n colours given as linear r, g, b arrays to l, alpha, beta arrays (vectorisable).
-  void from_linear(size_t n, const float* r, const float* g, const float* b, float* l, float* alpha, float* beta) const {
-    const float* m = rgb_to_lms_.data();
-    for (size_t i = 0; i < n; ++i) {
+  // kTile colours given as linear r, g, b arrays to l, alpha, beta arrays (vectorisable).
+  void from_linear(const float* __restrict r, const float* __restrict g, const float* __restrict b,
+                   float* __restrict l, float* __restrict alpha, float* __restrict beta) const {
+    const float m[9] = {rgb_to_lms_[0], rgb_to_lms_[1], rgb_to_lms_[2], rgb_to_lms_[3], rgb_to_lms_[4],
+                        rgb_to_lms_[5], rgb_to_lms_[6], rgb_to_lms_[7], rgb_to_lms_[8]};
+    for (size_t i = 0; i < kTile; ++i) {
       const float L = log2_approx(std::max(m[0] * r[i] + m[1] * g[i] + m[2] * b[i], 0.0f) + kDark);
       const float M = log2_approx(std::max(m[3] * r[i] + m[4] * g[i] + m[5] * b[i], 0.0f) + kDark);
       const float S = log2_approx(std::max(m[6] * r[i] + m[7] * g[i] + m[8] * b[i], 0.0f) + kDark);
@@ -110,17 +113,13 @@ class ColourModel {
   // log2 of a positive normal float to 5e-8: exponent, mantissa in [sqrt 1/2, sqrt 2), and
   // 2 atanh((m - 1) / (m + 1)) / ln 2 to the t^7 term. Inline and branch-free, unlike log2f.
   static float log2_approx(float x) {
-    uint32_t bits;
-    std::memcpy(&bits, &x, sizeof bits);
-    int e = int(bits >> 23) - 127;
-    const uint32_t mb = (bits & 0x7FFFFFu) | 0x3F800000u;
-    float m;
-    std::memcpy(&m, &mb, sizeof m);
-    const bool big = m > 1.41421356f;
-    m = big ? 0.5f * m : m;
-    e += big ? 1 : 0;
+    const uint32_t bits = std::bit_cast<uint32_t>(x);
+    const float m0 = std::bit_cast<float>((bits & 0x7FFFFFu) | 0x3F800000u);
+    const bool big = m0 > 1.41421356f;
+    const float m = big ? 0.5f * m0 : m0;
+    const float e = float(int32_t(bits >> 23) - 127) + (big ? 1.0f : 0.0f);
     const float t = (m - 1.0f) / (m + 1.0f), t2 = t * t;
-    return float(e) + t * (2.88539008f + t2 * (0.961796694f + t2 * (0.577078016f + t2 * 0.412198583f)));
+    return e + t * (2.88539008f + t2 * (0.961796694f + t2 * (0.577078016f + t2 * 0.412198583f)));
   }
 
   std::array<float, 9> rgb_to_lms_{};
@@ -340,30 +339,36 @@ class BtfCielab {
       for (size_t b = 0; b < nl; ++b)
         if (mark[b]) needed.push_back(uint32_t(b));
     }
+    std::vector<uint32_t> slot(nl, 0);  // light -> its place in `needed`
+    for (size_t k = 0; k < needed.size(); ++k) slot[needed[k]] = uint32_t(k);
     const bool hdr = samples_[0]->is_hdr();
+    const size_t nk = needed.size();
     // Texels go in tiles of kTile, so that every filtered image is written a cache line at a time.
     const size_t tiles = (texels_ + kTile - 1) / kTile;
     parallel_for(0, tiles, [&](size_t first, size_t last) {
-      std::vector<float> lab(nl * 3 * kTile);  // [light][channel][texel of the tile]
-      std::vector<float> rgb(needed.size() * 3 * kTile);
+      std::vector<float> rgb(nv * nk * 3 * kTile, 0.0f);  // [view][needed light][channel][texel of the tile]
+      std::vector<float> lab(nk * 3 * kTile);             // [needed light][channel][texel of the tile]
       for (size_t tile = first; tile < last; ++tile) {
         const size_t t0 = tile * kTile, n = std::min(kTile, texels_ - t0);
         for (size_t s = 0; s < 2; ++s) {
           const MeasuredSample& m = *samples_[s];
-          for (size_t v = 0; v < nv; ++v) {
-            // Gather the tile's linear colours light by light, then convert them kTile at a time.
-            for (size_t i = 0; i < n; ++i) {
+          // Each texel's run of the texel-major store read front to back (views in order), the
+          // linear colours kept for the tile.
+          for (size_t i = 0; i < n; ++i)
+            for (size_t v = 0; v < nv; ++v) {
               const size_t base = ((t0 + i) * pairs + v * nl) * 3;
-              for (size_t k = 0; k < needed.size(); ++k)
+              float* out = &rgb[v * nk * 3 * kTile + i];
+              for (size_t k = 0; k < nk; ++k)
                 for (size_t ch = 0; ch < 3; ++ch) {
                   const size_t at = base + 3 * needed[k] + ch;
-                  rgb[(3 * k + ch) * kTile + i] = hdr ? ColourModel::linear_hdr(m.hdr_data()[at]) : colour_.linear(m.ldr_data()[at]);
+                  out[(3 * k + ch) * kTile] = hdr ? ColourModel::linear_hdr(m.hdr_data()[at]) : colour_.linear(m.ldr_data()[at]);
                 }
             }
-            for (size_t k = 0; k < needed.size(); ++k) {
-              const float* src = &rgb[3 * k * kTile];
-              float* dst = &lab[3 * needed[k] * kTile];
-              colour_.from_linear(kTile, src, src + kTile, src + 2 * kTile, dst, dst + kTile, dst + 2 * kTile);
+          for (size_t v = 0; v < nv; ++v) {
+            for (size_t k = 0; k < nk; ++k) {
+              const float* src = &rgb[(v * nk + k) * 3 * kTile];
+              float* dst = &lab[3 * k * kTile];
+              colour_.from_linear(src, src + kTile, src + 2 * kTile, dst, dst + kTile, dst + 2 * kTile);
             }
             for (size_t l = l0; l < l1; ++l)
               for (size_t c = 0; c < kChannels.size(); ++c) {
@@ -371,7 +376,7 @@ class BtfCielab {
                 const size_t ch = size_t(kChannels[c].channel);
                 float acc[kTile] = {};
                 for (const auto& [b, g] : row) {
-                  const float* x = &lab[(3 * b + ch) * kTile];
+                  const float* x = &lab[(3 * slot[b] + ch) * kTile];
                   for (size_t i = 0; i < kTile; ++i) acc[i] += g * x[i];
                 }
                 std::copy(acc, acc + n, image(l - l0, v, s, c) + t0);
