@@ -72,7 +72,7 @@ struct BtfCielabOptions {
   int threads = 2;
   // Working memory for the filtered images of one block of light directions (both samples, all
   // views, seven channels); blocks are made as large as fit, at least one light.
-  size_t memory_budget = size_t(640) << 20;
+  size_t memory_budget = size_t(960) << 20;
 };
 
 struct BtfCielabReport {
