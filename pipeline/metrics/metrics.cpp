@@ -169,14 +169,16 @@ double lab_f(double t) {
   return t > d * d * d ? cube_root(t) : t / (3 * d * d) + 4.0 / 29.0;
 }
 
-CieLab linear_to_lab(double r, double g, double b) {
-  // Rec. 709 primaries, D65 white (Lindbloom's sRGB matrix; rows sum to the white point).
+CieLab lab_of_xyz(double X, double Y, double Z) {
   constexpr double xn = 0.95047, yn = 1.0, zn = 1.08883;
-  const double X = 0.4124564 * r + 0.3575761 * g + 0.1804375 * b;
-  const double Y = 0.2126729 * r + 0.7151522 * g + 0.0721750 * b;
-  const double Z = 0.0193339 * r + 0.1191920 * g + 0.9503041 * b;
   const double fx = lab_f(X / xn), fy = lab_f(Y / yn), fz = lab_f(Z / zn);
   return {116 * fy - 16, 500 * (fx - fy), 200 * (fy - fz)};
+}
+
+CieLab linear_to_lab(double r, double g, double b) {
+  // Rec. 709 primaries, D65 white (Lindbloom's sRGB matrix; rows sum to the white point).
+  const double* m = kSrgbToXyz;
+  return lab_of_xyz(m[0] * r + m[1] * g + m[2] * b, m[3] * r + m[4] * g + m[5] * b, m[6] * r + m[7] * g + m[8] * b);
 }
 
 double linear_channel(float v) {
@@ -246,6 +248,9 @@ double psnr(std::span<const uint8_t> a, std::span<const uint8_t> b) {
   }
   return psnr_from_mse(double(sse) / double(a.size()));
 }
+
+double srgb8_to_linear(float v) { return linear_channel(v); }
+CieLab xyz_to_lab(double x, double y, double z) { return lab_of_xyz(x, y, z); }
 
 CieLab srgb_to_lab(const Rgb& c) { return linear_to_lab(linear_channel(c.r), linear_channel(c.g), linear_channel(c.b)); }
 

@@ -54,6 +54,14 @@ struct CieLab {
 // Gamma-encoded sRGB on 0..255 (IEC 61966-2-1 transfer curve, Rec. 709 primaries, D65 white)
 // to CIELAB; inputs outside 0..255 are clamped.
 CieLab srgb_to_lab(const Rgb& srgb8);
+// The two halves of srgb_to_lab, for metrics that work in between (BTF-CIELab):
+// one clamped 0..255 gamma-encoded channel to linear 0..1 (IEC 61966-2-1), and CIE XYZ (Y of the
+// white = 1) to CIELAB relative to D65. srgb_to_lab(c) is xyz_to_lab(kSrgbToXyz * linear(c)).
+double srgb8_to_linear(float v);
+CieLab xyz_to_lab(double x, double y, double z);
+// Linear Rec. 709 RGB to XYZ, D65 (Lindbloom's matrix; rows sum to the white point), row-major.
+inline constexpr double kSrgbToXyz[9] = {0.4124564, 0.3575761, 0.1804375, 0.2126729, 0.7151522,
+                                         0.0721750, 0.0193339, 0.1191920, 0.9503041};
 // CIEDE2000 colour difference with kL = kC = kH = 1 (Sharma, Wu, Dalal 2005).
 double ciede2000(const CieLab& x, const CieLab& y);
 
