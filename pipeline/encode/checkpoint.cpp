@@ -301,7 +301,6 @@ std::optional<SavedWork> CheckpointFolder::load() {
     spdlog::warn("the checkpoint in {} is damaged ({}): starting from the beginning", folder_, e.what());
     return std::nullopt;
   }
-  logged_ = CodebookSizes::of(saved.codebooks);
 
   // Replay the tile records that continue this state, up to the first that does not (torn by the
   // kill, or of an older state); later appends go after the last good one.
