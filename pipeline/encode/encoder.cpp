@@ -206,6 +206,9 @@ Encoder::Encoder(Codebooks& books, Dynamic dyn, const Thresholds& thresholds, co
   i1_index_ = ProxyIndex(2 * grid_.n_beta, 2.0f);
   p2_store_ = SliceStore(1, &g2_);
   i2_store_ = SliceStore(2, &g2_);
+  m_sig_ = SignatureTable(3 * grid_.n_alpha);
+  p3_sig_ = SignatureTable(3 * grid_.n_theta_v);
+  p4_sig_ = SignatureTable(3 * grid_.n_theta_v * grid_.n_phi_v);
   Database{books_, {}}.validate();
   sync();
 }
@@ -354,8 +357,9 @@ void Encoder::cache_m(uint32_t e) {
   const ChannelView y = p2_store_.view(p2, 0);
   const double n = double(g2_.size());
   m_bright_.push_back(float(y.sum / n) - channel_offset(dyn_, 0));
-  for (int a = 0; a < na; ++a) m_sig_.push_back(p2_sig_[size_t(p2) * size_t(na) + size_t(a)]);
-  for (int a = 0; a < 2 * na; ++a) m_sig_.push_back(i2_sig_[size_t(i2) * size_t(2 * na) + size_t(a)]);
+  std::vector<float> sig(p2_sig_.begin() + ptrdiff_t(p2) * na, p2_sig_.begin() + ptrdiff_t(p2 + 1) * na);
+  sig.insert(sig.end(), i2_sig_.begin() + ptrdiff_t(i2) * 2 * na, i2_sig_.begin() + ptrdiff_t(i2 + 1) * 2 * na);
+  m_sig_.append(sig.data());
   m_lookup_.emplace((uint64_t(p2) << 32) | i2, e);
 }
 
@@ -364,17 +368,20 @@ void Encoder::cache_p3(uint32_t e) {
   p3_rows_.ids[table_row_hash(books_.p3_index, e, &books_.p3_scale)].push_back(e);
   const int nt = grid_.n_theta_v, na = grid_.n_alpha;
   double bright = 0;
+  std::vector<float> sig;
   for (int t = 0; t < nt; ++t) {
     const uint32_t m = books_.p3_index.at(e, size_t(t));
     const float s = books_.p3_scale.at(e, size_t(t));
     bright += s * m_bright_[m];
+    const float* ms = m_sig_.row(m);
     for (int c = 0; c < 3; ++c) {
       double mean = 0;
-      for (int a = 0; a < na; ++a) mean += m_sig_[size_t(m) * size_t(3 * na) + size_t(c * na + a)];
+      for (int a = 0; a < na; ++a) mean += ms[c * na + a];
       mean /= na;
-      p3_sig_.push_back(float(channel_scales(dyn_, c) ? s * mean : mean));
+      sig.push_back(float(channel_scales(dyn_, c) ? s * mean : mean));
     }
   }
+  p3_sig_.append(sig.data());
   p3_bright_.push_back(float(bright / nt));
 }
 
@@ -382,15 +389,15 @@ void Encoder::cache_p4(uint32_t e) {
   p4_rows_.ids[table_row_hash(books_.p4_index, e, &books_.p4_scale)].push_back(e);
   const int np = grid_.n_phi_v, nt = grid_.n_theta_v;
   double bright = 0;
+  std::vector<float> sig;
   for (int p = 0; p < np; ++p) {
     const uint32_t p3 = books_.p4_index.at(e, size_t(p));
     const float s = books_.p4_scale.at(e, size_t(p));
     bright += s * p3_bright_[p3];
-    for (int i = 0; i < 3 * nt; ++i) {
-      const float v = p3_sig_[size_t(p3) * size_t(3 * nt) + size_t(i)];
-      p4_sig_.push_back(channel_scales(dyn_, i % 3) ? s * v : v);
-    }
+    const float* ps = p3_sig_.row(p3);
+    for (int i = 0; i < 3 * nt; ++i) sig.push_back(channel_scales(dyn_, i % 3) ? s * ps[i] : ps[i]);
   }
+  p4_sig_.append(sig.data());
   p4_bright_.push_back(float(bright / np));
   if (settings_.metric == Metric::MSE) laesa_insert(e);
 }
@@ -514,8 +521,8 @@ namespace {
 
 // Candidate order: the `k` best by proxy first, then the others in index order; with a limit, only
 // the `limit` best by proxy (an approximate search, see docs/similarity.md).
-template <class Proxy>
-void order_candidates(uint32_t n, int k, int limit, Proxy proxy, std::vector<float>& prox,
+template <class Fill>
+void order_candidates(uint32_t n, int k, int limit, Fill fill, std::vector<float>& prox,
                       std::vector<uint32_t>& order, std::vector<uint8_t>& tried) {
   order.clear();
   if (limit > 0) k = std::max(k, limit);
@@ -524,7 +531,7 @@ void order_candidates(uint32_t n, int k, int limit, Proxy proxy, std::vector<flo
     return;
   }
   prox.resize(n);
-  for (uint32_t e = 0; e < n; ++e) prox[e] = proxy(e);
+  fill(prox);  // prox[e] for every entry e
   std::vector<uint32_t> idx(n);
   for (uint32_t e = 0; e < n; ++e) idx[e] = e;
   std::partial_sort(idx.begin(), idx.begin() + k, idx.end(),
@@ -540,18 +547,6 @@ void order_candidates(uint32_t n, int k, int limit, Proxy proxy, std::vector<flo
   }
   for (uint32_t e = 0; e < n; ++e)
     if (!tried[e]) order.push_back(e);
-}
-
-// Least-squares distance of two signatures after the best scale (a cheap ordering heuristic).
-float scaled_distance(const float* q, const float* y, int n) {
-  double qy = 0, yy = 0, qq = 0;
-  for (int i = 0; i < n; ++i) {
-    qy += double(q[i]) * y[i];
-    yy += double(y[i]) * y[i];
-    qq += double(q[i]) * q[i];
-  }
-  const double s = yy > 0 ? std::max(0.0, qy / yy) : 0.0;
-  return float(qq - 2 * s * qy + s * s * yy);
 }
 
 float plain_distance(const float* q, const float* y, int n) {
@@ -587,6 +582,19 @@ static void run_search(const std::vector<uint32_t>& order, bool pruning, double 
   if (best_index >= 0 && best_score < threshold_score) best_index = -1;
 }
 
+// Proxy distances of q to every entry of `sig`. The growing phases search on one thread, so a large
+// level is split over the encoder's threads; each entry's distance is the same on any thread.
+void Encoder::distances(const SignatureTable& sig, const float* q, std::vector<float>& prox) const {
+  const size_t n = sig.size(), grain = 64 * SignatureTable::kLanes;
+  if (threads_ <= 1 || n * sig.width() < 64 * 1024) {
+    sig.scaled_distances(q, 0, n, prox.data());
+    return;
+  }
+  parallel_for(0, (n + grain - 1) / grain, [&](size_t c) {
+    sig.scaled_distances(q, c * grain, std::min(n, (c + 1) * grain), prox.data() + c * grain);
+  }, ParallelOptions{threads_, 1});
+}
+
 void Encoder::order_composite(const Query& q, int level, Ctx& ctx) const {
   ctx.order.clear();
   const uint32_t n = uint32_t(level == 4 ? books_.p4_index.rows() : level == 3 ? books_.p3_index.rows() : books_.m.rows());
@@ -602,12 +610,9 @@ void Encoder::order_composite(const Query& q, int level, Ctx& ctx) const {
     for (int p = 0; p < q.planes; ++p)
       for (int c = 0; c < 3; ++c) qsig.push_back(float(q.at(p, c).sum / g2_.size()) - channel_offset(dyn_, c));
   }
-  const int ns = int(qsig.size());
-  const std::vector<float>& sig = level == 4 ? p4_sig_ : level == 3 ? p3_sig_ : m_sig_;
-  order_candidates(
-      n, settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
-      [&](uint32_t e) { return scaled_distance(qsig.data(), sig.data() + size_t(e) * size_t(ns), ns); }, ctx.proxy,
-      ctx.order, ctx.tried);
+  const SignatureTable& sig = level == 4 ? p4_sig_ : level == 3 ? p3_sig_ : m_sig_;
+  order_candidates(n, settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
+                   [&](std::vector<float>& prox) { distances(sig, qsig.data(), prox); }, ctx.proxy, ctx.order, ctx.tried);
 }
 
 Encoder::Match Encoder::search_composite(const Query& q, int level, double threshold_score, Ctx& ctx) const {
@@ -728,7 +733,9 @@ Encoder::Match Encoder::search_p2(const Query& q, double threshold_score, Ctx& c
   for (int a = 0; a < na; ++a) qsig[size_t(a)] = float(q.at(0, 0).row_sum(a, nb) / nb) - channel_offset(dyn_, 0);
   order_candidates(
       n, settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
-      [&](uint32_t e) { return plain_distance(qsig.data(), p2_sig_.data() + size_t(e) * size_t(na), na); },
+      [&](std::vector<float>& prox) {
+        for (uint32_t e = 0; e < n; ++e) prox[e] = plain_distance(qsig.data(), p2_sig_.data() + size_t(e) * size_t(na), na);
+      },
       ctx.proxy, ctx.order, ctx.tried);
   const Affine ax = unit_affine(dyn_, 0, q.unit);
   auto eval = [&](uint32_t e, double bound, double* sc, float* s) {
@@ -755,7 +762,10 @@ Encoder::Match Encoder::search_i2(const Query& q, double threshold_score, Ctx& c
     for (int a = 0; a < na; ++a) qsig.push_back(float(q.at(0, c).row_sum(a, nb) / nb) - channel_offset(dyn_, c));
   order_candidates(
       n, settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
-      [&](uint32_t e) { return plain_distance(qsig.data(), i2_sig_.data() + size_t(e) * size_t(2 * na), 2 * na); },
+      [&](std::vector<float>& prox) {
+        for (uint32_t e = 0; e < n; ++e)
+          prox[e] = plain_distance(qsig.data(), i2_sig_.data() + size_t(e) * size_t(2 * na), 2 * na);
+      },
       ctx.proxy, ctx.order, ctx.tried);
   auto eval = [&](uint32_t e, double bound, double* sc, float* s) {
     ctx.acc.reset(settings_.metric, q.values, settings_.outlier_fraction, bound);

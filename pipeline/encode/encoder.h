@@ -20,6 +20,7 @@
 #include "pipeline/codebook.h"
 #include "pipeline/util/config.h"
 #include "pipeline/encode/proxy_index.h"
+#include "pipeline/encode/signature_table.h"
 #include "pipeline/encode/similarity.h"
 
 namespace btfvq {
@@ -167,6 +168,7 @@ class Encoder {
                           float* scale, bool fixed_scale = false) const;
   Match search_composite(const Query& q, int level, double bound, Ctx& ctx) const;
   // search_composite in two steps: the candidate order (into ctx.order), then the search.
+  void distances(const SignatureTable& sig, const float* q, std::vector<float>& prox) const;
   void order_composite(const Query& q, int level, Ctx& ctx) const;
   Match search_composite_in(const Query& q, int level, const std::vector<uint32_t>& order, double bound,
                             Ctx& ctx) const;
@@ -232,7 +234,7 @@ class Encoder {
   // the Euclidean distance of the stored (a, b) rows.
   ProxyIndex p1_index_, i1_index_;
   bool indexed_1d() const { return settings_.pruning && settings_.candidate_limit > 0; }
-  std::vector<float> m_sig_, p3_sig_, p4_sig_;         // proxy signatures (offset-removed means)
+  SignatureTable m_sig_, p3_sig_, p4_sig_;  // proxy signatures (offset-removed means)
   std::vector<float> p2_sig_, i2_sig_;                 // row means
   std::vector<float> m_bright_, p3_bright_, p4_bright_;  // mean of (Y - offset)
   std::unordered_map<uint64_t, uint32_t> m_lookup_;    // (P2, I2) -> M

@@ -1,0 +1,72 @@
+// The blocked proxy-signature table gives, bit for bit, the distance of the one-entry formula the
+// encoder ordered its candidates by before the table existed (so databases did not change).
+#include <doctest/doctest.h>
+
+#include <cmath>
+#include <cstring>
+#include <random>
+#include <vector>
+
+#include "pipeline/encode/signature_table.h"
+
+using namespace btfvq;
+
+namespace {
+
+// The formula as the encoder had it inline: three sums in one loop, the best scale clamped at 0.
+float reference_distance(const float* q, const float* y, int n) {
+  double qy = 0, yy = 0, qq = 0;
+  for (int i = 0; i < n; ++i) {
+    qy += double(q[i]) * y[i];
+    yy += double(y[i]) * y[i];
+    qq += double(q[i]) * q[i];
+  }
+  const double s = yy > 0 ? std::max(0.0, qy / yy) : 0.0;
+  return float(qq - 2 * s * qy + s * s * yy);
+}
+
+bool same_bits(float a, float b) { return std::memcmp(&a, &b, sizeof a) == 0; }
+
+}  // namespace
+
+TEST_CASE("scaled distances of the blocked table equal the one-entry formula bitwise") {
+  std::mt19937 rng(11);
+  std::normal_distribution<float> value(0.0f, 30.0f);
+  for (int width : {1, 21, 33, 336}) {
+    SignatureTable table(width);
+    std::vector<std::vector<float>> rows;
+    for (int e = 0; e < 77; ++e) {  // not a multiple of the block width
+      std::vector<float> r(static_cast<size_t>(width));
+      for (float& v : r) v = value(rng);
+      if (e == 5) std::fill(r.begin(), r.end(), 0.0f);  // an all-zero entry: scale 0
+      table.append(r.data());
+      rows.push_back(r);
+    }
+    REQUIRE(table.size() == 77);
+    std::vector<float> q(static_cast<size_t>(width));
+    for (float& v : q) v = value(rng);
+    for (auto [first, last] : {std::pair<size_t, size_t>{0, 77}, {3, 9}, {8, 16}, {70, 77}, {76, 200}}) {
+      std::vector<float> out(last - first, -1.0f);
+      table.scaled_distances(q.data(), first, last, out.data());
+      for (size_t e = first; e < std::min<size_t>(last, 77); ++e) {
+        const float want = reference_distance(q.data(), rows[e].data(), width);
+        CHECK(same_bits(out[e - first], want));
+        CHECK(same_bits(scaled_distance(q.data(), rows[e].data(), width), want));
+        CHECK(std::memcmp(table.row(e), rows[e].data(), sizeof(float) * size_t(width)) == 0);
+      }
+    }
+  }
+}
+
+TEST_CASE("a scaled copy of an entry is at distance 0 from it, an unrelated one is not") {
+  SignatureTable table(4);
+  const float a[4] = {1, 2, 3, 4}, b[4] = {4, -3, 2, -1};
+  table.append(a);
+  table.append(b);
+  const float q[4] = {2.5f, 5, 7.5f, 10};
+  float d[2];
+  table.scaled_distances(q, 0, 2, d);
+  CHECK(d[0] == doctest::Approx(0.0).epsilon(1e-6));
+  CHECK(d[1] > 100.0f);  // best scale of b is 0 (negative correlation): the whole |q|^2 = 187.5
+  CHECK(d[1] == doctest::Approx(187.5));
+}
