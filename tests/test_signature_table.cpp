@@ -7,6 +7,8 @@
 #include <random>
 #include <vector>
 
+#include <algorithm>
+
 #include "pipeline/encode/signature_table.h"
 
 using namespace btfvq;
@@ -69,4 +71,45 @@ TEST_CASE("a scaled copy of an entry is at distance 0 from it, an unrelated one 
   CHECK(d[0] == doctest::Approx(0.0).epsilon(1e-6));
   CHECK(d[1] > 100.0f);  // best scale of b is 0 (negative correlation): the whole |q|^2 = 187.5
   CHECK(d[1] == doctest::Approx(187.5));
+}
+
+TEST_CASE("nearest() returns the k first of all entries sorted by (distance, index)") {
+  std::mt19937 rng(5);
+  std::normal_distribution<float> value(0.0f, 1.0f);
+  const int np = 16, nt = 7;
+  const int width = 3 * np * nt;  // a P4 signature
+  SignatureTable table(width);
+  std::vector<std::vector<float>> rows;
+  // Entries clustered like code-book entries (a few shapes, each at many scales and with noise),
+  // plus exact duplicates and scaled copies, so that ties and near-ties occur.
+  std::vector<std::vector<float>> shapes(6, std::vector<float>(size_t(width)));
+  for (auto& s : shapes)
+    for (float& v : s) v = 20.0f + 5.0f * value(rng);
+  for (int e = 0; e < 1500; ++e) {
+    std::vector<float> r = shapes[size_t(e) % shapes.size()];
+    const float scale = 0.5f + 0.01f * float(e % 97);
+    for (float& v : r) v = v * scale + 0.3f * value(rng);
+    if (e % 50 == 7) r = rows[size_t(e - 7)];  // a duplicate of an earlier entry: equal distance
+    table.append(r.data());
+    rows.push_back(r);
+  }
+  for (int trial = 0; trial < 40; ++trial) {
+    std::vector<float> q = rows[size_t(trial * 37) % rows.size()];
+    for (float& v : q) v = v * 1.7f + (trial % 3) * 0.2f * value(rng);
+    std::vector<std::pair<float, uint32_t>> all;
+    for (uint32_t e = 0; e < rows.size(); ++e) all.push_back({reference_distance(q.data(), rows[e].data(), width), e});
+    std::sort(all.begin(), all.end());
+    for (size_t k : {size_t(1), size_t(16), size_t(32)}) {
+      std::vector<uint32_t> got;
+      table.nearest(q.data(), k, got);
+      REQUIRE(got.size() == k);
+      std::vector<uint32_t> want;
+      for (size_t i = 0; i < k; ++i) want.push_back(all[i].second);
+      CHECK(got == want);
+    }
+  }
+  std::vector<uint32_t> few;
+  table.nearest(rows[0].data(), 5000, few);  // more than there are: all of them, sorted
+  CHECK(few.size() == rows.size());
+  CHECK(few[0] == 0);
 }

@@ -582,19 +582,6 @@ static void run_search(const std::vector<uint32_t>& order, bool pruning, double 
   if (best_index >= 0 && best_score < threshold_score) best_index = -1;
 }
 
-// Proxy distances of q to every entry of `sig`. The growing phases search on one thread, so a large
-// level is split over the encoder's threads; each entry's distance is the same on any thread.
-void Encoder::distances(const SignatureTable& sig, const float* q, std::vector<float>& prox) const {
-  const size_t n = sig.size(), grain = 64 * SignatureTable::kLanes;
-  if (threads_ <= 1 || n * sig.width() < 64 * 1024) {
-    sig.scaled_distances(q, 0, n, prox.data());
-    return;
-  }
-  parallel_for(0, (n + grain - 1) / grain, [&](size_t c) {
-    sig.scaled_distances(q, c * grain, std::min(n, (c + 1) * grain), prox.data() + c * grain);
-  }, ParallelOptions{threads_, 1});
-}
-
 void Encoder::order_composite(const Query& q, int level, Ctx& ctx) const {
   ctx.order.clear();
   const uint32_t n = uint32_t(level == 4 ? books_.p4_index.rows() : level == 3 ? books_.p3_index.rows() : books_.m.rows());
@@ -611,8 +598,19 @@ void Encoder::order_composite(const Query& q, int level, Ctx& ctx) const {
       for (int c = 0; c < 3; ++c) qsig.push_back(float(q.at(p, c).sum / g2_.size()) - channel_offset(dyn_, c));
   }
   const SignatureTable& sig = level == 4 ? p4_sig_ : level == 3 ? p3_sig_ : m_sig_;
-  order_candidates(n, settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
-                   [&](std::vector<float>& prox) { distances(sig, qsig.data(), prox); }, ctx.proxy, ctx.order, ctx.tried);
+  // As order_candidates: the k nearest by proxy, then (without a limit) the others in index order.
+  const int limit = settings_.candidate_limit;
+  const int k = limit > 0 ? limit : settings_.pruning ? settings_.proxy_candidates : 0;
+  if (k <= 0 || n <= uint32_t(k)) {
+    for (uint32_t e = 0; e < n; ++e) ctx.order.push_back(e);
+    return;
+  }
+  sig.nearest(qsig.data(), size_t(k), ctx.order);
+  if (limit > 0) return;
+  ctx.tried.assign(n, 0);
+  for (uint32_t e : ctx.order) ctx.tried[e] = 1;
+  for (uint32_t e = 0; e < n; ++e)
+    if (!ctx.tried[e]) ctx.order.push_back(e);
 }
 
 Encoder::Match Encoder::search_composite(const Query& q, int level, double threshold_score, Ctx& ctx) const {

@@ -168,7 +168,6 @@ class Encoder {
                           float* scale, bool fixed_scale = false) const;
   Match search_composite(const Query& q, int level, double bound, Ctx& ctx) const;
   // search_composite in two steps: the candidate order (into ctx.order), then the search.
-  void distances(const SignatureTable& sig, const float* q, std::vector<float>& prox) const;
   void order_composite(const Query& q, int level, Ctx& ctx) const;
   Match search_composite_in(const Query& q, int level, const std::vector<uint32_t>& order, double bound,
                             Ctx& ctx) const;

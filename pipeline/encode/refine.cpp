@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <future>
 #include <limits>
 #include <map>
 
@@ -64,14 +65,25 @@ struct PlaneSums {
   std::vector<double> gamma;        // per texel: |x - o|^2 over the scaled channels + unscaled error
 };
 
+// Calls f(t, x) for every texel t of the assignment with its values x, tile by tile, the next tile
+// resampled meanwhile (one source call at a time, in order). With `threads` != 1 the texels of a
+// tile are spread over the threads: only for an f that writes nothing but texel t's own outputs.
 template <class F>
-void for_each_tile(const Assignment& a, const TexelSource& source, size_t tile, size_t values, F&& f) {
-  std::vector<float> buffer;
-  for (size_t at = 0; at < a.ids.size(); at += tile) {
+void for_each_tile(const Assignment& a, const TexelSource& source, size_t tile, size_t values, size_t threads, F&& f) {
+  std::vector<float> buffers[2];
+  auto fetch = [&](size_t at) {
+    std::vector<float>& b = buffers[(at / tile) % 2];
     const size_t n = std::min(tile, a.ids.size() - at);
-    buffer.resize(n * values);
-    source(a.ids.data() + at, n, buffer.data());
-    for (size_t i = 0; i < n; ++i) f(at + i, buffer.data() + i * values);
+    b.resize(n * values);
+    source(a.ids.data() + at, n, b.data());
+  };
+  std::future<void> next = std::async(std::launch::async, fetch, size_t(0));
+  for (size_t at = 0; at < a.ids.size(); at += tile) {
+    next.get();
+    if (at + tile < a.ids.size()) next = std::async(std::launch::async, fetch, at + tile);
+    const float* x = buffers[(at / tile) % 2].data();
+    const size_t n = std::min(tile, a.ids.size() - at);
+    parallel_for(0, n, [&](size_t i) { f(at + i, x + i * values); }, ParallelOptions{threads, 1});
   }
 }
 
@@ -89,7 +101,7 @@ double lower_sums(const Codebooks& k, const CodebookSizes& first, Dynamic dyn, c
   const float oy = channel_offset(dyn, 0), oc = channel_offset(dyn, 1);
   const bool chroma_scales = channel_scales(dyn, 1);
   double error = 0;
-  for_each_tile(as, source, tile, 3 * L.samples, [&](size_t t, const float* x) {
+  for_each_tile(as, source, tile, 3 * L.samples, 1, [&](size_t t, const float* x) {
     const float s6 = as.scale[t];
     const uint32_t p4 = as.p4[t];
     for (int p = 0; p < L.np; ++p) {
@@ -411,7 +423,7 @@ void update_chroma(Codebooks& k, const CodebookSizes& first, LowerSums& s, const
 
 // Pass over the data with the updated lower code-books: PlaneSums.
 void plane_sums(const Codebooks& k, Dynamic dyn, const Assignment& as, const TexelSource& source, size_t tile,
-                PlaneSums& out) {
+                size_t threads, PlaneSums& out) {
   const Layout L(k.grid);
   const size_t planes = size_t(L.planes());
   out.alpha.assign(as.ids.size() * planes, 0.0);
@@ -423,7 +435,7 @@ void plane_sums(const Codebooks& k, Dynamic dyn, const Assignment& as, const Tex
     o[c] = channel_offset(dyn, c);
     scaled[c] = channel_scales(dyn, c);
   }
-  for_each_tile(as, source, tile, 3 * L.samples, [&](size_t t, const float* x) {
+  for_each_tile(as, source, tile, 3 * L.samples, threads, [&](size_t t, const float* x) {  // texel t's sums only
     const uint32_t p4 = as.p4[t];
     double gamma = 0;
     for (int p = 0; p < L.np; ++p) {
@@ -540,7 +552,7 @@ void update_scales(Codebooks& k, const CodebookSizes& first, Assignment& as, con
 }  // namespace
 
 RefineStep refine_step(Codebooks& books, const CodebookSizes& first, Dynamic dyn, Assignment& assignment,
-                       const TexelSource& source, size_t tile, const RefineMerge& merge) {
+                       const TexelSource& source, size_t tile, const RefineMerge& merge, size_t threads) {
   if (assignment.p4.size() != assignment.ids.size() || assignment.scale.size() != assignment.ids.size())
     throw InputError("refine_step: the assignment's ids, P4 entries and scales differ in number");
   if (books.grid.n_beta > 1024) throw InputError("refine_step: n_beta above 1024");
@@ -558,7 +570,7 @@ RefineStep refine_step(Codebooks& books, const CodebookSizes& first, Dynamic dyn
   update_chroma(books, first, lower, merge, budget);
   if (merge.i2 > 0) merge_i2(books, first, lower, merge.i2, budget);
   PlaneSums planes;
-  plane_sums(books, dyn, assignment, source, tile, planes);
+  plane_sums(books, dyn, assignment, source, tile, threads, planes);
   update_scales(books, first, assignment, planes);
   step.mse_after = plane_error(books, assignment, planes) / values;
   return step;

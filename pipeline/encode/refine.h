@@ -66,8 +66,8 @@ struct RefineStep {
 
 // One update of the rows at or past `first` (and of the assignment's scales) for the assignment.
 // Texels come from `source` in tiles of `tile` texels. The rows `merge` makes redundant are left for
-// reclaim_unreachable().
+// reclaim_unreachable(). `threads` as ParallelOptions::threads; the result does not depend on it.
 RefineStep refine_step(Codebooks& books, const CodebookSizes& first, Dynamic dyn, Assignment& assignment,
-                       const TexelSource& source, size_t tile, const RefineMerge& merge = {});
+                       const TexelSource& source, size_t tile, const RefineMerge& merge = {}, size_t threads = 0);
 
 }  // namespace btfvq

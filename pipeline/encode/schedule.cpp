@@ -160,7 +160,8 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
           as.scale[at + i] = entries[i].scale;
         }
       }
-      const RefineStep step = refine_step(books, first, dyn, as, source, tile, it == 0 ? schedule.refine.merge : RefineMerge{});
+      const RefineStep step = refine_step(books, first, dyn, as, source, tile, it == 0 ? schedule.refine.merge : RefineMerge{},
+                                          size_t(schedule.threads));
       result.report.refine.push_back(step);
       grown.add(encoder->stats());
       encoder = make_encoder(encoder->thresholds());

@@ -1,6 +1,7 @@
 #include "pipeline/encode/signature_table.h"
 
 #include <algorithm>
+#include <numeric>
 
 namespace btfvq {
 
@@ -8,9 +9,9 @@ namespace {
 
 // The distance from the three sums; float x float products are exact in double, so a sum taken in
 // value order is the same number however the loop around it is arranged.
-float distance_from(double qq, double qy, double yy) {
+double distance_from(double qq, double qy, double yy) {
   const double s = yy > 0 ? std::max(0.0, qy / yy) : 0.0;
-  return float(qq - 2 * s * qy + s * s * yy);
+  return qq - 2 * s * qy + s * s * yy;
 }
 
 double sum_of_squares(const float* v, size_t n) {
@@ -24,35 +25,60 @@ double sum_of_squares(const float* v, size_t n) {
 float scaled_distance(const float* q, const float* y, int n) {
   double qy = 0;
   for (int i = 0; i < n; ++i) qy += double(q[i]) * y[i];
-  return distance_from(sum_of_squares(q, size_t(n)), qy, sum_of_squares(y, size_t(n)));
+  return float(distance_from(sum_of_squares(q, size_t(n)), qy, sum_of_squares(y, size_t(n))));
 }
 
-void SignatureTable::append(const float* sig) {
-  rows_.insert(rows_.end(), sig, sig + width_);
-  if (n_ % kLanes == 0) blocks_.resize(blocks_.size() + width_ * kLanes, 0.0f);
-  float* block = blocks_.data() + (n_ / kLanes) * width_ * kLanes;
-  for (size_t i = 0; i < width_; ++i) block[i * kLanes + n_ % kLanes] = sig[i];
-  yy_.push_back(sum_of_squares(sig, width_));
-  ++n_;
+void SignatureTable::Blocks::append(const float* sig) {
+  if (n % kLanes == 0) v.resize(v.size() + width * kLanes, 0.0f);
+  float* block = v.data() + (n / kLanes) * width * kLanes;
+  for (size_t i = 0; i < width; ++i) block[i * kLanes + n % kLanes] = sig[i];
+  yy.push_back(sum_of_squares(sig, width));
+  ++n;
 }
 
-void SignatureTable::scaled_distances(const float* q, size_t first, size_t last, float* out) const {
-  last = std::min(last, n_);
+void SignatureTable::Blocks::distances(const float* q, size_t first, size_t last, float* out) const {
+  last = std::min(last, n);
   if (first >= last) return;
-  const double qq = sum_of_squares(q, width_);
+  const double qq = sum_of_squares(q, width);
   for (size_t b = first / kLanes; b * kLanes < last; ++b) {
-    const float* block = blocks_.data() + b * width_ * kLanes;
+    const float* block = v.data() + b * width * kLanes;
     double qy[kLanes] = {};
-    for (size_t i = 0; i < width_; ++i) {
+    for (size_t i = 0; i < width; ++i) {
       const double qi = q[i];
       const float* y = block + i * kLanes;
       for (size_t j = 0; j < kLanes; ++j) qy[j] += qi * double(y[j]);
     }
     for (size_t j = 0; j < kLanes; ++j) {
       const size_t e = b * kLanes + j;
-      if (e >= first && e < last) out[e - first] = distance_from(qq, qy[j], yy_[e]);
+      if (e >= first && e < last) out[e - first] = float(distance_from(qq, qy[j], yy[e]));
     }
   }
+}
+
+void SignatureTable::append(const float* sig) {
+  values_.insert(values_.end(), sig, sig + width());
+  rows_.append(sig);
+}
+
+void SignatureTable::scaled_distances(const float* q, size_t first, size_t last, float* out) const {
+  rows_.distances(q, first, last, out);
+}
+
+void SignatureTable::nearest(const float* q, size_t k, std::vector<uint32_t>& out) const {
+  const size_t n = size();
+  k = std::min(k, n);
+  out.resize(n);
+  if (k == 0) {
+    out.clear();
+    return;
+  }
+  std::vector<float> d(n);
+  rows_.distances(q, 0, n, d.data());
+  std::iota(out.begin(), out.end(), 0u);
+  auto closer = [&](uint32_t a, uint32_t b) { return d[a] < d[b] || (d[a] == d[b] && a < b); };
+  std::nth_element(out.begin(), out.begin() + ptrdiff_t(k - 1), out.end(), closer);
+  std::sort(out.begin(), out.begin() + ptrdiff_t(k), closer);
+  out.resize(k);
 }
 
 }  // namespace btfvq

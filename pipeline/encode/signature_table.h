@@ -1,10 +1,15 @@
 #pragma once
 // Proxy signatures of the composite code-books (M, P3, P4: offset-removed means per plane and
 // channel) and the cheap distance that orders a search's candidates (docs/similarity.md). Every
-// search of phases 1-3 and of the refinement scores the query against all entries of a level, so
-// the table keeps a copy in blocks of kLanes entries, value-major, that a loop scans kLanes entries
-// at a time. Each entry's sums are still taken in value order, so the distances are bitwise those of
-// the one-entry formula (scaled_distance) whatever the block layout, the CPU or the thread count.
+// search of phases 1-3 and of the refinement wants the k entries nearest to its query among all
+// entries of a level (a P4 search at 256 x 256: some 3,000 entries of 336 values), so the table
+// keeps a copy in blocks of kLanes entries, value-major, that a loop scans kLanes entries at a
+// time. Each entry's sums are still taken in value order, so the distances are bitwise those of the
+// one-entry formula (scaled_distance) whatever the layout, the CPU or the thread count.
+//
+// (Tried and dropped: a lower bound from per-bin sums, scoring entries in the order of their bound.
+// The bound was loose on P4 signatures and the one-at-a-time exact scores cost more than the block
+// scan they saved: leather 128 spent twice the CPU time in the search order.)
 #include <cstddef>
 #include <cstdint>
 #include <vector>
@@ -17,19 +22,26 @@ float scaled_distance(const float* q, const float* y, int n);
 class SignatureTable {
  public:
   static constexpr size_t kLanes = 8;
-  explicit SignatureTable(int width = 0) : width_(size_t(width)) {}
-  size_t width() const { return width_; }
-  size_t size() const { return n_; }
+  explicit SignatureTable(int width = 0) { rows_.width = size_t(width); }
+  size_t width() const { return rows_.width; }
+  size_t size() const { return rows_.n; }
   void append(const float* sig);
-  const float* row(size_t e) const { return rows_.data() + e * width_; }
+  const float* row(size_t e) const { return values_.data() + e * width(); }
   // out[e - first] = scaled_distance(q, row(e), width) for e in [first, last).
   void scaled_distances(const float* q, size_t first, size_t last, float* out) const;
+  // The min(k, size()) entries nearest to q, nearest first, ties to the lower index.
+  void nearest(const float* q, size_t k, std::vector<uint32_t>& out) const;
 
  private:
-  size_t width_ = 0, n_ = 0;
-  std::vector<float> rows_;    // n x width
-  std::vector<float> blocks_;  // ceil(n / kLanes) x width x kLanes; unused lanes 0
-  std::vector<double> yy_;     // per entry, sum of y^2 in value order
+  struct Blocks {  // n entries of `width` values, kLanes per block, with their sums of squares
+    size_t width = 0, n = 0;
+    std::vector<float> v;     // ceil(n / kLanes) x width x kLanes; unused lanes 0
+    std::vector<double> yy;  // per entry
+    void append(const float* sig);
+    void distances(const float* q, size_t first, size_t last, float* out) const;
+  };
+  std::vector<float> values_;  // row-major copy
+  Blocks rows_;
 };
 
 }  // namespace btfvq
