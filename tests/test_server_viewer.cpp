@@ -1,0 +1,200 @@
+// The browser viewer (docs/viewer.md) for real: a real btfvq-server compresses leather 32 x 32, and
+// headless Chromium (tests/viewer_browser.py, the DevTools protocol over a pipe, WebGL2 in
+// SwiftShader) opens the material's viewer page, which streams the sections by HTTP Range, decodes
+// them in JavaScript and draws them with the WebGL2 decoder. Checked: the plane view matches
+// `btfvq render` of the same directions (mean absolute difference <= 2 of 255 per channel), the page
+// fetched at most 1.1 x the bytes of the sections the material needs (DevTools and the server's own
+// count), and its event log shows a first picture before the last P6 byte arrived.
+#include <doctest/doctest.h>
+#include <httplib.h>
+#include <OpenImageIO/imageio.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "pipeline/format/database.h"
+#include "support/server_process.h"
+#include "support/test_paths.h"
+
+using namespace btfvq;
+using namespace btfvq::test;
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace {
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+std::string cli(const fs::path& dir, const std::string& args) {
+  const fs::path out = dir / "cli-stdout.txt";
+  std::string all;
+  const int status = run_command((bin_dir() / "btfvq").string() + " " + args + " > " + out.string(), &all);
+  INFO("btfvq " << args << ": " << all);
+  REQUIRE(status == 0);
+  std::string text = slurp(out);
+  while (!text.empty() && (text.back() == '\n' || text.back() == ' ')) text.pop_back();
+  return text;
+}
+
+struct Image {
+  int width = 0, height = 0, channels = 0;
+  std::vector<uint8_t> pixels;
+  int at(int x, int y, int c) const { return pixels[(size_t(y) * size_t(width) + size_t(x)) * size_t(channels) + size_t(c)]; }
+};
+
+Image read_png(const fs::path& path) {
+  auto in = OIIO::ImageInput::open(path.string());
+  REQUIRE_MESSAGE(in, "cannot read " << path);
+  const OIIO::ImageSpec& spec = in->spec();
+  Image im{spec.width, spec.height, spec.nchannels, {}};
+  im.pixels.resize(size_t(im.width) * size_t(im.height) * size_t(im.channels));
+  REQUIRE(in->read_image(0, 0, 0, im.channels, OIIO::TypeDesc::UINT8, im.pixels.data()));
+  return im;
+}
+
+double bytes_served(const std::string& url) {
+  httplib::Client c(url);
+  auto r = c.Get("/metrics");
+  REQUIRE(r);
+  const std::string key = "\nbtfvq_bytes_served_total ";
+  const auto at = r->body.find(key);
+  REQUIRE(at != std::string::npos);
+  return std::stod(r->body.substr(at + key.size()));
+}
+
+// Stored bytes of the sections one material needs: its own and every code-book chunk of its version
+// or before (what the page must fetch, besides the head).
+uint64_t needed_bytes(const fs::path& file, const std::string& material) {
+  const std::string bytes = slurp(file);
+  const auto* data = reinterpret_cast<const uint8_t*>(bytes.data());
+  const DatabaseHead head = parse_head(data, bytes.size(), file.string());
+  uint32_t version = 0;
+  uint64_t total = 0;
+  for (const SectionEntry& s : head.sections)
+    if (s.kind == SectionKind::Material && s.material == material) {
+      version = s.version;
+      total += s.length;
+    }
+  REQUIRE(version > 0);
+  for (const SectionEntry& s : head.sections)
+    if (s.kind == SectionKind::Codebook && s.version <= version) total += s.length;
+  return total;
+}
+
+}  // namespace
+
+TEST_CASE("viewer files: the page, modules with a JavaScript type, 404 for anything else") {
+  const fs::path dir = scratch_dir("viewer-files");
+  ServerProcess server(dir / "data", free_loopback_port());
+  httplib::Client c(server.url());
+  for (const char* page : {"/viewer/", "/viewer/shop/leather"}) {
+    auto r = c.Get(page);
+    REQUIRE(r);
+    CHECK(r->status == 200);
+    CHECK(r->get_header_value("Content-Type") == "text/html; charset=utf-8");
+    CHECK(r->body.find("/viewer/static/viewer.js") != std::string::npos);
+  }
+  for (const char* module : {"viewer.js", "streaming.js", "database.js", "range_coder.js", "renderer.js", "fzstd.js"}) {
+    auto r = c.Get(std::string("/viewer/static/") + module);
+    REQUIRE(r);
+    CHECK(r->status == 200);
+    CHECK(r->get_header_value("Content-Type") == "text/javascript; charset=utf-8");
+  }
+  auto css = c.Get("/viewer/static/viewer.css");
+  REQUIRE(css);
+  CHECK(css->get_header_value("Content-Type") == "text/css; charset=utf-8");
+  auto missing = c.Get("/viewer/static/nothing.js");
+  REQUIRE(missing);
+  CHECK(missing->status == 404);
+  CHECK(json::parse(missing->body)["error"]["code"] == "not_found");
+  // No request leaves the server: no absolute URL in any file.
+  for (const char* file : {"index.html", "viewer.js", "streaming.js", "database.js", "range_coder.js", "renderer.js"}) {
+    auto r = c.Get(std::string("/viewer/static/") + file);
+    if (std::string(file) == "index.html") r = c.Get("/viewer/");
+    REQUIRE(r);
+    CHECK_MESSAGE(r->body.find("http://") == std::string::npos, file);
+    CHECK_MESSAGE(r->body.find("https://") == std::string::npos, file);
+  }
+}
+
+TEST_CASE("viewer in headless Chromium: streams leather 32 x 32, draws it like btfvq render, fetches only its sections") {
+  const fs::path dir = scratch_dir("viewer-browser");
+  ServerProcess server(dir / "data", free_loopback_port());
+  const std::string s = "--server " + server.url();
+  const std::string job = cli(dir, "submit " + s + " --db shop --synthetic leather:32 --name leather --seed 3");
+  cli(dir, "watch " + s + " " + job);
+  const fs::path db = dir / "shop.btfdb";
+  cli(dir, "download " + s + " shop --out " + db.string());
+  // The directions of the comparison: generic ones (between grid nodes in every dimension).
+  const std::string light = "35,120", view = "20,60";
+  cli(dir, "render " + db.string() + " --material leather --light " + light + " --view " + view + " --out " +
+               (dir / "render.png").string());
+
+  const double served_before = bytes_served(server.url());
+  const std::string page = server.url() + "/viewer/shop/leather?scene=plane&light=" + light + "&view=" + view;
+  std::string output;
+  const int status = run_command("python3 " + (fs::path(BTFVQ_SOURCE_DIR) / "tests" / "viewer_browser.py").string() + " '" +
+                                     page + "' " + dir.string() + " 120",
+                                 &output);
+  if (status != 0) FAIL("viewer_browser.py: " << output);
+  const double served = bytes_served(server.url()) - served_before;
+  const json record = json::parse(slurp(dir / "record.json"));
+
+  // (Plain blocks, not SUBCASEs: doctest would run the whole case, browser and all, once per subcase.)
+  {  // the plane view is btfvq render's image
+    const Image render = read_png(dir / "render.png"), canvas = read_png(dir / "canvas.png");
+    REQUIRE(render.width == 32);
+    REQUIRE(canvas.width == 512);
+    REQUIRE(canvas.height == 512);
+    const int block = canvas.width / render.width;  // canvas pixels per texel
+    double diff[3] = {0, 0, 0};
+    for (int y = 0; y < render.height; ++y)
+      for (int x = 0; x < render.width; ++x)
+        for (int c = 0; c < 3; ++c)
+          diff[c] += std::abs(canvas.at(x * block + block / 2, y * block + block / 2, c) - render.at(x, y, c));
+    for (double& d : diff) d /= double(render.width * render.height);
+    std::printf("viewer vs btfvq render: mean absolute difference R %.3f G %.3f B %.3f of 255\n", diff[0], diff[1], diff[2]);
+    for (double d : diff) CHECK(d <= 2.0);
+  }
+
+  {  // bytes fetched from /content: at most 1.1 x the sections the material needs
+    const uint64_t needed = needed_bytes(db, "leather");
+    uint64_t fetched = 0;
+    for (const json& r : record["requests"])
+      if (r["url"].get<std::string>().find("/content") != std::string::npos) {
+        CHECK(r["status"] == 206);  // every piece by Range, never the whole file
+        fetched += r["bytes"].get<uint64_t>();
+      }
+    std::printf("viewer fetched %llu bytes from /content (server counted %.0f) for %llu bytes of sections (file %llu)\n",
+                (unsigned long long)fetched, served, (unsigned long long)needed, (unsigned long long)fs::file_size(db));
+    CHECK(fetched > 0);
+    CHECK(double(fetched) <= 1.1 * double(needed));
+    CHECK(served <= 1.1 * double(needed));
+  }
+
+  {  // a first picture before the last P6 byte, then the final one
+    const json& events = record["events"];
+    long first_frame = -1, last_p6 = -1, final_frame = -1;
+    for (size_t i = 0; i < events.size(); ++i) {
+      const json& e = events[i];
+      if (e["type"] == "frame" && first_frame < 0) first_frame = long(i);
+      if (e["type"] == "frame" && e["final"] == true) final_frame = long(i);
+      if (e["type"] == "received" && e["what"] == "p6") last_p6 = long(i);
+    }
+    INFO(events.dump());
+    REQUIRE(first_frame >= 0);
+    REQUIRE(last_p6 >= 0);
+    CHECK(first_frame < last_p6);
+    CHECK(events[size_t(first_frame)]["final"] == false);
+    CHECK(final_frame > last_p6);
+  }
+}
