@@ -2,13 +2,15 @@
 // headless Chromium (tests/viewer_browser.py, the DevTools protocol over a pipe, WebGL2 in
 // SwiftShader) opens the material's viewer page, which streams the sections by HTTP Range, decodes
 // them in JavaScript and draws them with the WebGL2 decoder. Checked: the plane view matches
-// `btfvq render` of the same directions (mean absolute difference <= 2 of 255 per channel), the page
-// fetched at most 1.1 x the bytes of the sections the material needs (DevTools and the server's own
-// count), and its event log shows a first picture before the last P6 byte arrived.
+// `btfvq render` of the same directions and the sphere `btfvq render --scene sphere` (mean absolute
+// difference <= 2 of 255 per channel), the page fetched at most 1.1 x the bytes of the sections the
+// material needs (DevTools and the server's own count), its event log shows a first picture before
+// the last P6 byte arrived, and the listing page names the database and the material.
 #include <doctest/doctest.h>
 #include <httplib.h>
 #include <OpenImageIO/imageio.h>
 
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -90,6 +92,33 @@ uint64_t needed_bytes(const fs::path& file, const std::string& material) {
   return total;
 }
 
+// Opens `page` in headless Chromium (tests/viewer_browser.py) and returns what it recorded; the
+// screenshots land in `out`. Any failure to start the browser or to finish the page fails here, with
+// the script's one line.
+json run_browser(const std::string& page, const fs::path& out) {
+  fs::create_directories(out);
+  std::string output;
+  const std::string script = (fs::path(BTFVQ_SOURCE_DIR) / "tests" / "viewer_browser.py").string();
+  const int status = run_command("python3 " + script + " '" + page + "' " + out.string() + " 120", &output);
+  if (status != 0) FAIL("viewer_browser.py: " << output);
+  return json::parse(slurp(out / "record.json"));
+}
+
+// Mean absolute difference per channel of `render` and the canvas sampled at the centre of each of
+// its blocks (the canvas is an integer multiple of the render's size).
+std::array<double, 3> mean_difference(const Image& render, const Image& canvas) {
+  REQUIRE(canvas.width % render.width == 0);
+  REQUIRE(canvas.width / render.width == canvas.height / render.height);
+  const int block = canvas.width / render.width;
+  std::array<double, 3> diff{0, 0, 0};
+  for (int y = 0; y < render.height; ++y)
+    for (int x = 0; x < render.width; ++x)
+      for (int c = 0; c < 3; ++c)
+        diff[size_t(c)] += std::abs(canvas.at(x * block + block / 2, y * block + block / 2, c) - render.at(x, y, c));
+  for (double& d : diff) d /= double(render.width * render.height);
+  return diff;
+}
+
 }  // namespace
 
 TEST_CASE("viewer files: the page, modules with a JavaScript type, 404 for anything else") {
@@ -140,29 +169,16 @@ TEST_CASE("viewer in headless Chromium: streams leather 32 x 32, draws it like b
                (dir / "render.png").string());
 
   const double served_before = bytes_served(server.url());
-  const std::string page = server.url() + "/viewer/shop/leather?scene=plane&light=" + light + "&view=" + view;
-  std::string output;
-  const int status = run_command("python3 " + (fs::path(BTFVQ_SOURCE_DIR) / "tests" / "viewer_browser.py").string() + " '" +
-                                     page + "' " + dir.string() + " 120",
-                                 &output);
-  if (status != 0) FAIL("viewer_browser.py: " << output);
+  const json record = run_browser(server.url() + "/viewer/shop/leather?scene=plane&light=" + light + "&view=" + view, dir / "plane");
   const double served = bytes_served(server.url()) - served_before;
-  const json record = json::parse(slurp(dir / "record.json"));
 
   // (Plain blocks, not SUBCASEs: doctest would run the whole case, browser and all, once per subcase.)
   {  // the plane view is btfvq render's image
-    const Image render = read_png(dir / "render.png"), canvas = read_png(dir / "canvas.png");
+    const Image render = read_png(dir / "render.png"), canvas = read_png(dir / "plane" / "canvas.png");
     REQUIRE(render.width == 32);
     REQUIRE(canvas.width == 512);
-    REQUIRE(canvas.height == 512);
-    const int block = canvas.width / render.width;  // canvas pixels per texel
-    double diff[3] = {0, 0, 0};
-    for (int y = 0; y < render.height; ++y)
-      for (int x = 0; x < render.width; ++x)
-        for (int c = 0; c < 3; ++c)
-          diff[c] += std::abs(canvas.at(x * block + block / 2, y * block + block / 2, c) - render.at(x, y, c));
-    for (double& d : diff) d /= double(render.width * render.height);
-    std::printf("viewer vs btfvq render: mean absolute difference R %.3f G %.3f B %.3f of 255\n", diff[0], diff[1], diff[2]);
+    const auto diff = mean_difference(render, canvas);
+    std::printf("plane: viewer vs btfvq render: mean absolute difference R %.3f G %.3f B %.3f of 255\n", diff[0], diff[1], diff[2]);
     for (double d : diff) CHECK(d <= 2.0);
   }
 
@@ -196,5 +212,22 @@ TEST_CASE("viewer in headless Chromium: streams leather 32 x 32, draws it like b
     CHECK(first_frame < last_p6);
     CHECK(events[size_t(first_frame)]["final"] == false);
     CHECK(final_frame > last_p6);
+  }
+
+  {  // the sphere is btfvq render --scene sphere's image, pixel for pixel
+    cli(dir, "render " + db.string() + " --material leather --scene sphere --light 40,135 --tiles 2 --size 512 --out " +
+                 (dir / "sphere.png").string());
+    run_browser(server.url() + "/viewer/shop/leather?scene=sphere&light=40,135&tiles=2", dir / "sphere");
+    const auto diff = mean_difference(read_png(dir / "sphere.png"), read_png(dir / "sphere" / "canvas.png"));
+    std::printf("sphere: viewer vs btfvq render --scene sphere: mean absolute difference R %.3f G %.3f B %.3f of 255\n",
+                diff[0], diff[1], diff[2]);
+    for (double d : diff) CHECK(d <= 2.0);
+  }
+
+  {  // the listing names the database and links its material
+    const json listing = run_browser(server.url() + "/viewer/", dir / "listing");
+    const std::string text = listing["page_text"];
+    CHECK(text.find("shop") != std::string::npos);
+    CHECK(text.find("leather") != std::string::npos);
   }
 }

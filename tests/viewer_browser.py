@@ -4,13 +4,14 @@
 usage: viewer_browser.py URL OUT_DIR [TIMEOUT_S]
 
 Drives the browser over the DevTools protocol on a pipe (--remote-debugging-pipe: no port, no
-extra package), with WebGL2 rendered in software by SwiftShader. Waits until the page says it drew
-its final frame (body data-state="final"), then writes to OUT_DIR:
-  canvas.png    a screenshot of the canvas, CSS pixel = screen pixel
-  page.png      a screenshot of the whole window (docs/images/viewer_leather.png is one)
+extra package), with WebGL2 rendered in software by SwiftShader. Waits until the page says it is done
+(body data-state "final": a material page drew its final frame; "listed": the listing is complete),
+then writes to OUT_DIR:
+  canvas.png    a material page's canvas, CSS pixel = screen pixel
+  page.png      the whole window (docs/images/viewer_leather.png is one)
   record.json   {"events": window.viewerEvents, "requests": [{url, status, range, bytes}], "state", "log"}
 bytes are the body bytes the browser received for a request (Network.dataReceived).
-Exit status 0 when the page reached its final frame; otherwise 1 with one line on stderr saying why
+Exit status 0 when the page got there; otherwise 1 with one line on stderr saying why
 (2: Chromium could not be started at all).
 """
 import base64
@@ -129,11 +130,15 @@ def main():
         deadline, state = time.time() + timeout, None
         while time.time() < deadline:
             state = evaluate("document.body ? document.body.dataset.state || '' : ''")
-            if state in ("final", "error"):
+            if state in ("final", "listed", "error"):
                 break
             time.sleep(0.1)
         record = {"state": state, "events": json.loads(evaluate("JSON.stringify(window.viewerEvents || [])") or "[]"),
                   "page_text": evaluate("document.body ? document.body.innerText : ''")}
+        if state in ("final", "listed"):
+            page = browser.send("Page.captureScreenshot", {"format": "png"}, session=session)
+            with open(os.path.join(out_dir, "page.png"), "wb") as f:
+                f.write(base64.b64decode(page["data"]))
         if state == "final":
             box = evaluate("(() => { const r = document.getElementById('canvas').getBoundingClientRect();"
                            " return [r.left, r.top, r.width, r.height]; })()")
@@ -141,17 +146,14 @@ def main():
                 "x": box[0], "y": box[1], "width": box[2], "height": box[3], "scale": 1}}, session=session)
             with open(os.path.join(out_dir, "canvas.png"), "wb") as f:
                 f.write(base64.b64decode(shot["data"]))
-            page = browser.send("Page.captureScreenshot", {"format": "png"}, session=session)
-            with open(os.path.join(out_dir, "page.png"), "wb") as f:
-                f.write(base64.b64decode(page["data"]))
         # Network events still queued on the pipe belong to this page too.
         browser.send("Runtime.evaluate", {"expression": "0"}, session=session)
         record["requests"] = requests_of(browser.events)
         with open(os.path.join(out_dir, "record.json"), "w") as f:
             json.dump(record, f, indent=1)
-        if state != "final":
+        if state not in ("final", "listed"):
             errors = [e.get("message") for e in record["events"] if e.get("type") == "error"]
-            print(f"the viewer page did not reach its final frame (state {state!r}): {errors or record['page_text']}",
+            print(f"the viewer page did not finish (state {state!r}): {errors or record['page_text']}",
                   file=sys.stderr)
             return 1
         return 0

@@ -11,6 +11,39 @@ const kVersionRecordBytes = 52;
 
 const u64 = (view, at) => view.getUint32(at, true) + view.getUint32(at + 4, true) * 2 ** 32;
 
+// CRC-64/XZ (docs/format.md "Conventions") in two 32-bit halves: the reflected polynomial
+// 0xC96C5795D7870F42, initial value and final xor all ones. Returned as 16 hex digits.
+const kCrcTable = (() => {
+  const table = { lo: new Uint32Array(256), hi: new Uint32Array(256) };
+  for (let i = 0; i < 256; ++i) {
+    let lo = i, hi = 0;
+    for (let k = 0; k < 8; ++k) {
+      const bit = lo & 1;
+      lo = ((lo >>> 1) | (hi << 31)) >>> 0;
+      hi >>>= 1;
+      if (bit) {
+        lo = (lo ^ 0xd7870f42) >>> 0;
+        hi = (hi ^ 0xc96c5795) >>> 0;
+      }
+    }
+    table.lo[i] = lo;
+    table.hi[i] = hi;
+  }
+  return table;
+})();
+
+export function crc64(bytes) {
+  let lo = 0xffffffff, hi = 0xffffffff;
+  for (let k = 0; k < bytes.length; ++k) {
+    const i = (lo ^ bytes[k]) & 0xff;
+    lo = (((lo >>> 8) | (hi << 24)) ^ kCrcTable.lo[i]) >>> 0;
+    hi = ((hi >>> 8) ^ kCrcTable.hi[i]) >>> 0;
+  }
+  const hex = (v) => ((v ^ 0xffffffff) >>> 0).toString(16).padStart(8, '0');
+  return hex(hi) + hex(lo);
+}
+const hex64 = (view, at) => view.getUint32(at + 4, true).toString(16).padStart(8, '0') + view.getUint32(at, true).toString(16).padStart(8, '0');
+
 // head_length from the first 56 bytes.
 export function parseHeader(bytes) {
   const view = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
@@ -49,12 +82,14 @@ export function parseHead(bytes) {
       offset: u64(view, at + 8),
       length: u64(view, at + 16),
       rawLength: u64(view, at + 24),
+      checksum: hex64(view, at + 32),
       codebook: CODEBOOKS[view.getUint16(at + 40, true)],
       name: names.decode(bytes.subarray(at + 44, at + 44 + nameLength)),
     });
     at += 44 + nameLength;
   }
   if (at + 8 !== head.headLength) throw new CorruptSection('the section table does not end at head_length');
+  if (crc64(bytes.subarray(0, at)) !== hex64(view, at)) throw new CorruptSection('the head checksum does not match');
   return head;
 }
 
@@ -118,8 +153,8 @@ function unpack(bytes, at, count, w) {
   return out;
 }
 
-// A section being decoded from its stored bytes, which may still be arriving: `advance(received)`
-// decodes as far as they go (encoding 2 value by value; encodings 0 and 1 once complete).
+// A section being decoded from its stored bytes, which may still be arriving: each append() decodes
+// as far as the bytes so far go (encoding 2 value by value; encodings 0 and 1 once complete).
 // `fields[k].values` holds the codes, `header` the section header bytes.
 export class SectionDecoder {
   constructor(section, grid) {
@@ -136,6 +171,12 @@ export class SectionDecoder {
     return this.advance();
   }
   complete() { return this.fields !== null && this.fields.every((f) => f.done === f.count); }
+  // Throws unless the stored bytes, all here, have the table's checksum (values decoded before this
+  // are drawn, but a damaged section ends in an error, never in a final frame).
+  verify() {
+    if (this.received !== this.section.length || crc64(this.stored) !== this.section.checksum)
+      throw new CorruptSection(`section ${this.section.index} does not match its checksum`);
+  }
 
   advance() {
     const { section, stored, received } = this;

@@ -96,6 +96,7 @@ export async function streamMaterial(db, material, { onProgress, onCodebooks, on
     const decoder = new SectionDecoder(s, head.grid);
     await content.range(s.offset, s.offset + s.length, `codebook ${s.codebook} v${s.version}`, (c) => { decoder.append(c); progress(); });
     if (!decoder.complete()) throw new Error(`code-book section ${s.index} did not decode`);
+    decoder.verify();
     rows.push(chunkRows(decoder));
     ++sectionsDone;
     progress();
@@ -115,7 +116,10 @@ export async function streamMaterial(db, material, { onProgress, onCodebooks, on
     if (ready === drawn) continue;
     drawn = ready;
     const final = p6.complete();
-    if (final) ++sectionsDone;
+    if (final) {
+      p6.verify();
+      ++sectionsDone;
+    }
     progress();
     onFrame({
       header: materialHeader(p6), entries: index.values, scales: scale.coding ? dequantize(scale.coding, scale.values) : new Float32Array(scale.count),

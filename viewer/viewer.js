@@ -38,6 +38,7 @@ async function showListing() {
     box.append(element('h2', [`${d.name} `, element('small', [`version ${d.version}, ${kib(d.size)}, ratio ${d.ratio.toFixed(1)}`])]),
                element('table', rows, { className: 'databases' }));
   }
+  document.body.dataset.state = 'listed';
 }
 
 // The catalogue's numbers for one material (GET /v1/databases/{db}): the database's size and ratio,
