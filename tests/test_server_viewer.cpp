@@ -1,7 +1,8 @@
-// The browser viewer (docs/viewer.md) for real: a real btfvq-server compresses leather 32 x 32, and
+// The browser viewer (docs/viewer.md) for real: a real btfvq-server compresses leather 32 x 32 (then an
+// HDR wood 16 x 16 into a second version), and
 // headless Chromium (tests/viewer_browser.py, the DevTools protocol over a pipe, WebGL2 in
 // SwiftShader) opens the material's viewer page, which streams the sections by HTTP Range, decodes
-// them in JavaScript and draws them with the WebGL2 decoder. Checked: the plane view matches
+// them in JavaScript and draws them with the WebGL2 decoder. Checked: the plane view of each matches
 // `btfvq render` of the same directions and the sphere `btfvq render --scene sphere` (mean absolute
 // difference <= 2 of 255 per channel), the page fetched at most 1.1 x the bytes of the sections the
 // material needs (DevTools and the server's own count), its event log shows a first picture before
@@ -119,6 +120,13 @@ std::array<double, 3> mean_difference(const Image& render, const Image& canvas) 
   return diff;
 }
 
+// Submits a job and waits until it is done (the job id is the last word `btfvq submit` prints, after
+// any upload progress).
+void run_job(const fs::path& dir, const std::string& server_args, const std::string& job_args) {
+  const std::string out = cli(dir, "submit " + server_args + " " + job_args);
+  cli(dir, "watch " + server_args + " " + out.substr(out.find_last_of(" \n") + 1));
+}
+
 }  // namespace
 
 TEST_CASE("viewer files: the page, modules with a JavaScript type, 404 for anything else") {
@@ -155,18 +163,24 @@ TEST_CASE("viewer files: the page, modules with a JavaScript type, 404 for anyth
   }
 }
 
-TEST_CASE("viewer in headless Chromium: streams leather 32 x 32, draws it like btfvq render, fetches only its sections") {
+TEST_CASE("viewer in headless Chromium: streams a material, draws it like btfvq render, fetches only its sections") {
   const fs::path dir = scratch_dir("viewer-browser");
   ServerProcess server(dir / "data", free_loopback_port());
   const std::string s = "--server " + server.url();
-  const std::string job = cli(dir, "submit " + s + " --db shop --synthetic leather:32 --name leather --seed 3");
-  cli(dir, "watch " + s + " " + job);
+  // Version 1: leather, LDR. Version 2: an HDR wood (uploaded: synthetic jobs are LDR), whose code-book
+  // rows are appended chunks: its page must put both versions' chunks together, and leather's page
+  // must not fetch them.
+  run_job(dir, s, "--db shop --synthetic leather:32 --name leather --seed 3");
+  const fs::path wood = dir / "wood-hdr.zip";
+  cli(dir, "synth --preset wood --size 16 --hdr --seed 2 --out " + wood.string());
+  run_job(dir, s, "--db shop --upload " + wood.string() + " --name wood-hdr");
   const fs::path db = dir / "shop.btfdb";
   cli(dir, "download " + s + " shop --out " + db.string());
   // The directions of the comparison: generic ones (between grid nodes in every dimension).
   const std::string light = "35,120", view = "20,60";
-  cli(dir, "render " + db.string() + " --material leather --light " + light + " --view " + view + " --out " +
-               (dir / "render.png").string());
+  for (const char* material : {"leather", "wood-hdr"})
+    cli(dir, "render " + db.string() + " --material " + material + " --light " + light + " --view " + view + " --out " +
+                 (dir / (std::string(material) + ".png")).string());
 
   const double served_before = bytes_served(server.url());
   const json record = run_browser(server.url() + "/viewer/shop/leather?scene=plane&light=" + light + "&view=" + view, dir / "plane");
@@ -174,11 +188,11 @@ TEST_CASE("viewer in headless Chromium: streams leather 32 x 32, draws it like b
 
   // (Plain blocks, not SUBCASEs: doctest would run the whole case, browser and all, once per subcase.)
   {  // the plane view is btfvq render's image
-    const Image render = read_png(dir / "render.png"), canvas = read_png(dir / "plane" / "canvas.png");
+    const Image render = read_png(dir / "leather.png"), canvas = read_png(dir / "plane" / "canvas.png");
     REQUIRE(render.width == 32);
     REQUIRE(canvas.width == 512);
     const auto diff = mean_difference(render, canvas);
-    std::printf("plane: viewer vs btfvq render: mean absolute difference R %.3f G %.3f B %.3f of 255\n", diff[0], diff[1], diff[2]);
+    std::printf("plane, leather: viewer vs btfvq render: mean absolute difference R %.3f G %.3f B %.3f of 255\n", diff[0], diff[1], diff[2]);
     for (double d : diff) CHECK(d <= 2.0);
   }
 
@@ -193,6 +207,7 @@ TEST_CASE("viewer in headless Chromium: streams leather 32 x 32, draws it like b
     std::printf("viewer fetched %llu bytes from /content (server counted %.0f) for %llu bytes of sections (file %llu)\n",
                 (unsigned long long)fetched, served, (unsigned long long)needed, (unsigned long long)fs::file_size(db));
     CHECK(fetched > 0);
+    CHECK(fetched < fs::file_size(db));  // wood-hdr's sections are not among them
     CHECK(double(fetched) <= 1.1 * double(needed));
     CHECK(served <= 1.1 * double(needed));
   }
@@ -214,6 +229,16 @@ TEST_CASE("viewer in headless Chromium: streams leather 32 x 32, draws it like b
     CHECK(final_frame > last_p6);
   }
 
+  {  // HDR, with code-book rows of both versions: the plane view is btfvq render's image too
+    run_browser(server.url() + "/viewer/shop/wood-hdr?scene=plane&light=" + light + "&view=" + view, dir / "hdr");
+    const Image render = read_png(dir / "wood-hdr.png"), canvas = read_png(dir / "hdr" / "canvas.png");
+    REQUIRE(render.width == 16);
+    const auto diff = mean_difference(render, canvas);
+    std::printf("plane, wood-hdr: viewer vs btfvq render: mean absolute difference R %.3f G %.3f B %.3f of 255\n", diff[0],
+                diff[1], diff[2]);
+    for (double d : diff) CHECK(d <= 2.0);
+  }
+
   {  // the sphere is btfvq render --scene sphere's image, pixel for pixel
     cli(dir, "render " + db.string() + " --material leather --scene sphere --light 40,135 --tiles 2 --size 512 --out " +
                  (dir / "sphere.png").string());
@@ -229,5 +254,6 @@ TEST_CASE("viewer in headless Chromium: streams leather 32 x 32, draws it like b
     const std::string text = listing["page_text"];
     CHECK(text.find("shop") != std::string::npos);
     CHECK(text.find("leather") != std::string::npos);
+    CHECK(text.find("wood-hdr") != std::string::npos);
   }
 }
