@@ -118,6 +118,11 @@ EventSource job_events(Service& service, const std::string& id) {
   };
 }
 
+void send_viewer_file(httplib::Response& res, const ViewerFile& file) {
+  res.set_header("Cache-Control", "no-cache");
+  res.set_content(file.body, file.content_type);
+}
+
 void send_content(const httplib::Request& req, httplib::Response& res, Service& service, const ContentInfo& c) {
   res.set_header("X-Content-Sha256", c.sha256);
   res.set_header("X-Database-Version", std::to_string(c.version));

@@ -11,6 +11,7 @@
 #include <string>
 
 #include "server/service.h"
+#include "server/viewer_files.h"
 
 namespace btfvq::server {
 
@@ -41,5 +42,8 @@ EventSource job_events(Service& service, const std::string& id);
 // starts past the end, else the file, to which httplib applies a Range (206). The bytes sent count
 // in the service's metrics.
 void send_content(const httplib::Request& req, httplib::Response& res, Service& service, const ContentInfo& content);
+
+// One of the viewer's files. no-cache: a browser revalidates, so a new server build is seen at once.
+void send_viewer_file(httplib::Response& res, const ViewerFile& file);
 
 }  // namespace btfvq::server

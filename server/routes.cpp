@@ -11,6 +11,7 @@
 #include "server/http_responses.h"
 #include "server/http_server.h"
 #include "server/metrics_text.h"
+#include "server/viewer_files.h"
 
 namespace btfvq::server {
 using nlohmann::json;
@@ -116,6 +117,15 @@ void HttpServer::install_routes() {
   s.Get(R"(/v1/databases/([^/]+)/content)", [&svc](const Request& req, Response& res) {
     send_content(req, res, svc, svc.content(req.matches[1], version_query(req)));
   });
+
+  // ---- the browser viewer (docs/viewer.md): static files; the page reads the API above itself.
+  s.Get("/viewer", [](const Request&, Response& res) { res.set_redirect("/viewer/", 301); });
+  auto page = [](const Request&, Response& res) { send_viewer_file(res, viewer_page()); };
+  s.Get("/viewer/", page);
+  s.Get(R"(/viewer/static/([^/]+))", [](const Request& req, Response& res) {
+    send_viewer_file(res, viewer_file(req.matches[1]));
+  });
+  s.Get(R"(/viewer/([^/]+)/([^/]+))", page);
 }
 
 }  // namespace btfvq::server

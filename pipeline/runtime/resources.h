@@ -6,7 +6,7 @@
 
 namespace btfvq {
 
-// Keys are "kernels/NAME.cl" and "configs/NAME.json".
+// Keys are "kernels/NAME.cl", "configs/NAME.json" and "viewer/NAME.{html,js,css}" (the browser viewer).
 const std::map<std::string, std::string>& embedded_resources();
 
 // The text of one resource; throws NotFoundError naming the key.
