@@ -818,7 +818,12 @@ def markdown(a, soak, fuzz, others):
         if f["five_xx"]:
             md += ["", "5xx answers: " + "; ".join(f"`{x[:200]}`" for x in f["five_xx"][:5])]
         ok = ok and c["5xx"] == 0 and not f["crashed"] and f["server_alive"] and f["healthz_after"] and not f["stray_files"]
-    md += ["", f"Busy processes on the machine at the end (other sessions): {others or 'none'}."]
+    binary = "a RelWithDebInfo build (cmake -DCMAKE_BUILD_TYPE=RelWithDebInfo)" if "build-release" not in a.bin else "the -O3 release build of make bench"
+    extra = " ".join(sys.argv[1:])
+    extra = re.sub(r"--(json|scratch|testdata|figures|bin) \S+ ?", "", extra).strip()
+    md += ["", f"Command: `BENCH_ONLY=bench_soak bash bench/run.sh {a.bin}`{' with `' + extra + '`' if extra else ''} "
+           f"({binary} of btfvq-server and btfvq). Busy processes on the machine at the end (other sessions "
+           f"compiling and testing on the same 2 cores): {others or 'none'}."]
     return "\n".join(md), ok
 
 
