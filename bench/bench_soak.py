@@ -433,13 +433,14 @@ def summarize_soak(a, soak, first_job_s, idle, after, alive, healthy, hung, stat
     m2 = minute(a.soak_seconds * 0.1, a.soak_seconds * 0.2)  # the 2nd minute of 10
     m10 = minute(a.soak_seconds * 0.9, a.soak_seconds + 1)    # the 10th
     growth = (m10[1] - m2[1]) / m2[1] * 100
+    growth_min = (m10[3] - m2[3]) / m2[3] * 100  # of the lowest sample of each minute (between jobs)
     peak_threads = max(s[2] for s in soak.samples_rss)
     return {"clients": a.clients, "seconds": a.soak_seconds, "requests": total, "failed": failed,
             "deliberate_4xx": deliberate, "per_kind": table, "failures": soak.failures,
             "rss_kb": {"idle_before": idle["rss_kb"], "minute_2": m2[1], "end": m10[1], "peak": max(s[1] for s in soak.samples_rss),
                        "t_minute_2": m2[0], "t_end": m10[0], "minute_2_range": [m2[3], m2[4]], "end_range": [m10[3], m10[4]],
                        "minute_2_samples": m2[2], "end_samples": m10[2]},
-            "rss_growth_pct": growth, "threads": {"idle_before": idle["threads"], "peak": peak_threads,
+            "rss_growth_pct": growth, "rss_growth_of_minimum_pct": growth_min, "threads": {"idle_before": idle["threads"], "peak": peak_threads,
                                                   "end": after["threads"] if after else None},
             "rss_series": [(round(t, 1), r, th) for t, r, th in soak.samples_rss[::5]],
             "submissions": soak.submissions, "job_states": states, "first_job_s": first_job_s,
@@ -784,7 +785,8 @@ def markdown(a, soak, fuzz, others):
                f"soak (after the first job), **{r['minute_2'] / 1024:.1f} MiB in the 2nd minute "
                f"({r['minute_2_range'][0] / 1024:.0f}-{r['minute_2_range'][1] / 1024:.0f}), {r['end'] / 1024:.1f} MiB in the last "
                f"({r['end_range'][0] / 1024:.0f}-{r['end_range'][1] / 1024:.0f}): growth {s['rss_growth_pct']:+.1f}%** "
-               f"(acceptance: at most 10%), peak {r['peak'] / 1024:.1f} MiB. Threads: {s['threads']['idle_before']} idle before, peak "
+               f"(acceptance: at most 10%); of the lowest sample of each minute (between jobs) {s['rss_growth_of_minimum_pct']:+.1f}%; "
+               f"peak {r['peak'] / 1024:.1f} MiB. Threads: {s['threads']['idle_before']} idle before, peak "
                f"{s['threads']['peak']}, {s['threads']['end']} at the end (the HTTP threads are created as connections "
                "need them and kept until the server stops, docs/api.md \"Connections\": the count does not shrink "
                "after a burst, but it stays bounded by the connection caps).", "",
