@@ -18,15 +18,23 @@ int run_download(const Args& args) {
   ProgressBar bar("download " + name);
   const auto r = client.download_database(name, out, version,
                                           [&](uint64_t done, uint64_t total) { bar.update_bytes(done, total); });
-  bar.finish(ProgressBar::format_bytes(r.size) + (r.resumed_from ? " (resumed at " + ProgressBar::format_bytes(r.resumed_from) + ")" : "") +
-             ", sha256 verified");
-  std::cout << out << " " << r.sha256 << " version " << r.version << "\n";
+  std::string how = r.resumed_from ? " (resumed at " + ProgressBar::format_bytes(r.resumed_from) + ")" : "";
+  if (r.delta_from)
+    how = r.delta_from == r.version ? " (already at version " + std::to_string(r.version) + ")"
+                                    : " (delta from version " + std::to_string(r.delta_from) + ")";
+  bar.finish(ProgressBar::format_bytes(r.size) + how + ", " + ProgressBar::format_bytes(r.transferred) +
+             " transferred, sha256 verified");
+  if (!r.fallback.empty()) std::cerr << "btfvq download: no delta download (" << r.fallback << "); downloaded in full\n";
+  // The line scripts read: FILE SHA256 version N transferred BYTES [delta-from M]
+  std::cout << out << " " << r.sha256 << " version " << r.version << " transferred " << r.transferred;
+  if (r.delta_from) std::cout << " delta-from " << r.delta_from;
+  std::cout << "\n";
   return 0;
 }
 
 CommandRegistrar reg({"download", "download --server URL NAME --out FILE [--version N]",
-                      "download a database (resumes FILE.part, verifies the sha256)",
-                      remote_options({{"out", "FILE", "where to write; a FILE.part left by a broken download is resumed"},
+                      "download a database (resumes FILE.part; an existing FILE of an older version fetches only what is new; verifies the sha256)",
+                      remote_options({{"out", "FILE", "where to write; a FILE.part left by a broken download is resumed, an existing FILE is updated by a delta download"},
                                       {"version", "N", "that version instead of the newest"}}),
                       {}, run_download});
 

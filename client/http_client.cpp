@@ -2,10 +2,12 @@
 
 #include <httplib.h>
 
+#include <algorithm>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <thread>
+#include <vector>
 
 #include "client/cli.h"
 #include <btfvq/error.h>
@@ -350,6 +352,7 @@ DownloadResult HttpClient::fetch(const std::string& name, const std::string& out
   if (!r) throw Error("connection", "download interrupted (" + httplib::to_string(r.error()) +
                                         "); run the same command again to resume");
   result.size = fs::file_size(part);
+  result.transferred = received;
   const std::string actual = sha256_file(part);
   if (result.sha256.empty() || actual != result.sha256) {
     fs::remove(part);
@@ -361,14 +364,133 @@ DownloadResult HttpClient::fetch(const std::string& name, const std::string& out
   return result;
 }
 
+namespace {
+
+// The sha256 of bytes [first, last) of a file.
+std::string sha256_range(const std::string& path, uint64_t first, uint64_t last) {
+  std::ifstream in(path, std::ios::binary);
+  in.seekg(std::streamoff(first));
+  Sha256 sha;
+  std::vector<char> buffer(1 << 16);
+  for (uint64_t at = first; at < last;) {
+    const size_t n = size_t(std::min<uint64_t>(buffer.size(), last - at));
+    if (!in.read(buffer.data(), std::streamsize(n))) throw Error("io", "cannot read '" + path + "'");
+    sha.update(buffer.data(), n);
+    at += n;
+  }
+  return sha.hex();
+}
+
+}  // namespace
+
+DownloadResult HttpClient::delta(const std::string& name, const std::string& out, std::optional<int64_t> version,
+                                 const ByteProgress& progress) {
+  const json info = get_json("/v1/databases/" + name);
+  const std::string local = sha256_file(out);
+  const json *have = nullptr, *want = version ? nullptr : &info.at("newest");
+  for (const auto& v : info.at("versions")) {
+    if (v.at("sha256") == local) have = &v;
+    if (version && v.at("version") == *version) want = &v;
+  }
+  if (!want) throw NotFoundError("database '" + name + "' has no version " + std::to_string(*version));
+  if (!have) throw CorruptError("the local file is no version of '" + name + "' that the server lists");
+  DownloadResult result;
+  result.version = want->at("version").get<int64_t>();
+  result.sha256 = want->at("sha256").get<std::string>();
+  result.size = want->at("size").get<uint64_t>();
+  result.delta_from = have->at("version").get<int64_t>();
+  if (result.delta_from == result.version) return result;  // up to date: nothing to fetch
+  if (result.delta_from > result.version) throw Error("delta", "the local file is a newer version");
+  const json &lh = have->at("layout"), &lw = want->at("layout");
+  if (!lh.is_object() || !lw.is_object()) throw Error("delta", "the server advertises no layout of these versions");
+  const uint64_t have_head = lh.at("head_length"), have_size = have->at("size"), want_head = lw.at("head_length");
+  const json& prefix = lw.at("prefixes").at(size_t(result.delta_from - 1));
+  const uint64_t end = prefix.at("end");
+  if (prefix.at("version") != result.delta_from || end < want_head || have_head > have_size ||
+      end - want_head != have_size - have_head || end > result.size)
+    throw Error("delta", "the layouts of versions " + std::to_string(result.delta_from) + " and " +
+                             std::to_string(result.version) + " do not share the sections");
+  // The local sections must be the bytes that the new version keeps before any of them is reused.
+  if (sha256_range(out, have_head, have_size) != prefix.at("sha256").get<std::string>())
+    throw CorruptError("the local sections differ from those of version " + std::to_string(result.delta_from));
+
+  AtomicFile file(out);
+  std::ofstream dst(file.temp_path(), std::ios::binary | std::ios::trunc);
+  Sha256 whole;
+  const uint64_t to_fetch = want_head + (result.size - end);
+  const std::string path = "/v1/databases/" + name + "/content?version=" + std::to_string(result.version);
+  auto append = [&](const char* p, size_t n) {
+    dst.write(p, std::streamsize(n));
+    whole.update(p, n);
+    return bool(dst);
+  };
+  auto fetch_range = [&](uint64_t first, uint64_t last) {  // bytes [first, last)
+    int status = 0;
+    std::string error_body, sha;
+    auto on_response = [&](const httplib::Response& r) {
+      status = r.status;
+      sha = r.get_header_value("X-Content-Sha256");
+      return true;
+    };
+    auto on_data = [&](const char* p, size_t n) {
+      if (status != 206) {
+        error_body.append(p, std::min<size_t>(n, 4096));
+        return error_body.size() < 4096;
+      }
+      result.transferred += n;
+      if (progress) progress(result.transferred, to_fetch);
+      return append(p, n);
+    };
+    const auto r = client_->Get(path, {{"Range", "bytes=" + std::to_string(first) + "-" + std::to_string(last - 1)}},
+                                on_response, on_data);
+    if (!r) throw Error("connection", "download interrupted (" + httplib::to_string(r.error()) + ")");
+    if (status != 206) throw Error("delta", "a range request answered " + std::to_string(status) + ": " + error_body);
+    if (sha != result.sha256) throw Error("delta", "the server's version " + std::to_string(result.version) + " changed");
+  };
+  fetch_range(0, want_head);
+  {
+    std::ifstream src(out, std::ios::binary);
+    src.seekg(std::streamoff(have_head));
+    std::vector<char> buffer(1 << 16);
+    for (uint64_t at = have_head; at < have_size;) {
+      const size_t n = size_t(std::min<uint64_t>(buffer.size(), have_size - at));
+      if (!src.read(buffer.data(), std::streamsize(n)) || !append(buffer.data(), n))
+        throw Error("io", "cannot copy the local sections of '" + out + "'");
+      at += n;
+    }
+  }
+  if (end < result.size) fetch_range(end, result.size);
+  dst.close();
+  if (!dst) throw Error("io", "cannot write '" + file.temp_path() + "'");
+  const std::string actual = whole.hex();
+  if (actual != result.sha256)
+    throw CorruptError("the delta of '" + name + "' hashes to " + actual + ", the server says " + result.sha256);
+  file.commit();
+  return result;
+}
+
 DownloadResult HttpClient::download_database(const std::string& name, const std::string& out,
                                              std::optional<int64_t> version, const ByteProgress& progress) {
   const bool resuming = fs::exists(out + ".part") && fs::exists(out + ".part.json");
+  std::string fallback;
+  if (!resuming && fs::is_regular_file(out)) {
+    try {
+      return delta(name, out, version, progress);
+    } catch (const NotFoundError&) {
+      throw;
+    } catch (const std::exception& e) {
+      fallback = e.what();  // a full download, below
+    }
+  }
   try {
-    return fetch(name, out, version, progress);
+    DownloadResult r = fetch(name, out, version, progress);
+    r.fallback = fallback;
+    return r;
   } catch (const CorruptError&) {
     if (!resuming) throw;
-    return fetch(name, out, version, progress);  // the partial file was bad; it is gone now
+    DownloadResult r = fetch(name, out, version, progress);  // the partial file was bad; it is gone now
+    r.fallback = fallback;
+    return r;
   }
 }
 

@@ -37,6 +37,9 @@ struct DownloadResult {
   std::string sha256;
   int64_t version = 0;
   uint64_t resumed_from = 0;  // bytes already present in FILE.part
+  uint64_t transferred = 0;   // body bytes received from the server by this call
+  int64_t delta_from = 0;     // the version of the local file that was brought up to date (0: a full download)
+  std::string fallback;       // why a delta download was not possible (empty: it was, or none was tried)
 };
 
 // How `btfvq submit --upload` sends a file: in pieces (PUT with Content-Range), each retried after a
@@ -80,11 +83,17 @@ class HttpClient {
   // version being fetched), resumes an interrupted download with a Range request, verifies the
   // sha256 against X-Content-Sha256, and renames into place only when verified. A resume that
   // fails verification starts over once. Throws CorruptError if the fresh copy does not verify.
+  // When `out` exists already and is a published version of the database (its sha256 is one the
+  // server lists), only the new head and the sections added since are fetched (docs/api.md "Delta
+  // downloads"); anything unexpected there falls back to a full download.
   DownloadResult download_database(const std::string& name, const std::string& out, std::optional<int64_t> version,
                                    const ByteProgress& progress);
 
  private:
   DownloadResult fetch(const std::string& name, const std::string& out, std::optional<int64_t> version,
+                       const ByteProgress& progress);
+  // The delta download; throws (anything) when it is not possible, and the caller downloads fully.
+  DownloadResult delta(const std::string& name, const std::string& out, std::optional<int64_t> version,
                        const ByteProgress& progress);
   std::unique_ptr<httplib::Client> client_;
   Remote remote_;

@@ -3,6 +3,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <fstream>
 #include <set>
 
 #include "pipeline/format/database.h"
@@ -26,6 +27,40 @@ json version_json(const VersionRecord& v) {
           {"materials", v.materials},
           {"raw_bytes", raw},
           {"ratio", compression_ratio(raw, v.size)}};
+}
+
+// {"head_length": H, "prefixes": [{"version": k, "end": E_k, "sha256": S_k}, ...]}: in this file,
+// bytes [H, E_k) are the sections of versions 1..k (the .btfdb appends each version's sections
+// after those of the versions before, byte for byte; docs/format.md), S_k their sha256; so the
+// sections that version k added are [E_(k-1), E_k) (E_0 = H).
+json compute_layout(const fs::path& file) {
+  std::ifstream in(file, std::ios::binary);
+  std::vector<uint8_t> head(kHeaderBytes);
+  if (!in.read(reinterpret_cast<char*>(head.data()), std::streamsize(head.size()))) return nullptr;
+  const uint64_t length = head_length(head.data(), head.size());
+  if (length < kHeaderBytes || length > (uint64_t(256) << 20)) return nullptr;
+  head.resize(size_t(length));
+  if (!in.read(reinterpret_cast<char*>(head.data() + kHeaderBytes), std::streamsize(length - kHeaderBytes)))
+    return nullptr;
+  const DatabaseHead h = parse_head(head.data(), head.size(), file.string());
+  std::vector<uint64_t> end(size_t(h.version) + 1, h.head_length);
+  for (const auto& s : h.sections) end[s.version] = std::max(end[s.version], s.offset + s.length);
+  for (size_t k = 1; k < end.size(); ++k) end[k] = std::max(end[k], end[k - 1]);
+  Sha256 sha;
+  std::vector<char> buffer(1 << 16);
+  uint64_t at = h.head_length;
+  json prefixes = json::array();
+  for (size_t k = 1; k < end.size(); ++k) {
+    while (at < end[k]) {
+      const size_t n = size_t(std::min<uint64_t>(buffer.size(), end[k] - at));
+      if (!in.read(buffer.data(), std::streamsize(n))) return nullptr;
+      sha.update(buffer.data(), n);
+      at += n;
+    }
+    Sha256 copy = sha;  // hex() finishes the hash it is called on
+    prefixes.push_back({{"version", k}, {"end", end[k]}, {"sha256", copy.hex()}});
+  }
+  return {{"head_length", h.head_length}, {"prefixes", prefixes}};
 }
 
 }  // namespace
@@ -54,7 +89,10 @@ json Catalogue::database(const std::string& name) {
   const auto versions = store_.versions(name);
   if (versions.empty()) throw NotFoundError("no database '" + name + "'");
   json all = json::array();
-  for (const auto& v : versions) all.push_back(version_json(v));
+  for (const auto& v : versions) {
+    all.push_back(version_json(v));
+    all.back()["layout"] = layout(data_.root() / v.path);
+  }
   return {{"name", name}, {"newest", all.back()}, {"versions", all}};
 }
 
@@ -87,6 +125,23 @@ std::shared_ptr<const BtfDatabase> Catalogue::open_cached(const fs::path& file) 
   if (preview_cache_.size() >= 4) preview_cache_.clear();
   preview_cache_[file] = db;
   return db;
+}
+
+json Catalogue::layout(const fs::path& file) {
+  {
+    std::lock_guard lock(layout_mutex_);
+    if (auto it = layout_cache_.find(file); it != layout_cache_.end()) return it->second;
+  }
+  json l;
+  try {
+    l = compute_layout(file);  // not under the lock: reads the whole file
+  } catch (const std::exception& e) {
+    spdlog::debug("no layout for {}: {}", file.string(), e.what());
+    l = nullptr;
+  }
+  std::lock_guard lock(layout_mutex_);
+  layout_cache_[file] = l;
+  return l;
 }
 
 NextVersion Catalogue::next_version(const std::string& database) {

@@ -55,12 +55,18 @@ class Catalogue {
 
  private:
   std::shared_ptr<const BtfDatabase> open_cached(const std::filesystem::path& file);
+  // The byte layout of a published version's file for delta downloads (docs/api.md "Delta
+  // downloads"), computed once per file (a published version never changes); null for a file that
+  // is not a .btfdb.
+  nlohmann::json layout(const std::filesystem::path& file);
 
   Store& store_;
   DataDir data_;
   // Opened databases for previews, by file (a published version never changes); a few at most.
   std::mutex preview_mutex_;
   std::map<std::filesystem::path, std::shared_ptr<const BtfDatabase>> preview_cache_;
+  std::mutex layout_mutex_;
+  std::map<std::filesystem::path, nlohmann::json> layout_cache_;
 };
 
 }  // namespace btfvq::server

@@ -28,7 +28,9 @@ constexpr int kHttplibStatuses[] = {404, 413, 416};
 std::string error_body(const std::string& code, const std::string& message, const nlohmann::json& details) {
   nlohmann::json error = {{"code", code}, {"message", message}};
   if (details.is_object()) error.update(details);
-  return nlohmann::json{{"error", error}}.dump();
+  // A message may quote what the client sent (a path, an id): bytes that are not UTF-8 become U+FFFD
+  // rather than an exception in the middle of answering (found by the fuzz of bench/bench_soak.py).
+  return nlohmann::json{{"error", error}}.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
 }
 
 int http_status(const Error& error) {

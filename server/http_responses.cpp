@@ -65,7 +65,7 @@ void send_file(const httplib::Request& req, httplib::Response& res, const Conten
 
 void send_json(httplib::Response& res, const json& body, int status) {
   res.status = status;
-  res.set_content(body.dump(2) + "\n", "application/json");
+  res.set_content(body.dump(2, ' ', false, json::error_handler_t::replace) + "\n", "application/json");
 }
 
 void send_error(httplib::Response& res, std::exception_ptr error) {
@@ -92,7 +92,7 @@ void send_event_stream(httplib::Response& res, Service& service, const std::atom
           if (http_stopping || service.stopping()) return false;
           const uint64_t seen = service.revision();
           if (auto event = stream->next()) {
-            if (!stream->write(sink, "event: " + event->name + "\ndata: " + event->data.dump() + "\n\n")) return false;
+            if (!stream->write(sink, "event: " + event->name + "\ndata: " + event->data.dump(-1, ' ', false, json::error_handler_t::replace) + "\n\n")) return false;
             if (event->last) sink.done();
             return true;  // httplib flushes and calls again
           }
@@ -110,7 +110,7 @@ EventSource job_events(Service& service, const std::string& id) {
     json key = job;
     key.erase("elapsed_s");
     key.erase("eta_s");
-    std::string text = key.dump();
+    std::string text = key.dump(-1, ' ', false, json::error_handler_t::replace);
     if (text == last) return std::nullopt;
     last = std::move(text);
     const bool final = is_final(job["state"].get<JobState>());

@@ -73,6 +73,8 @@ class JobQueue {
   std::optional<JobRecord> next_job();    // under mutex_
   JobRecord begin_running(JobRecord job);  // under mutex_
   void end_running(const JobRecord& job);
+  // Gives the memory that a finished job freed back to the system (glibc keeps it otherwise).
+  static void release_freed_memory();
   void run(const JobRecord& job);
   JobContext context(const std::string& id, const NextVersion& next);
   void publish(const JobRecord& job, const JobSpec& spec, VersionRecord next, const std::vector<MaterialRecord>& added);

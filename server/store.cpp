@@ -133,7 +133,7 @@ int64_t Store::insert_job(const JobRecord& j) {
   const int64_t seq = next.integer(0);
   Statement s(db_, "INSERT INTO jobs (id, seq, database, spec, state, progress, error, created) VALUES (?,?,?,?,?,?,?,?)");
   s.bind(j.id).bind(seq).bind(j.database).bind(j.spec.dump()).bind(to_string(j.state)).bind(j.progress.dump())
-      .bind(j.error.is_null() ? std::string() : j.error.dump()).bind(j.created);
+      .bind(j.error.is_null() ? std::string() : j.error.dump(-1, ' ', false, json::error_handler_t::replace)).bind(j.created);
   s.step();
   return seq;
 }
@@ -167,14 +167,14 @@ void Store::set_job_state(const std::string& id, JobState state, const json& err
                           double finished) {
   std::lock_guard lock(mutex_);
   Statement s(db_, "UPDATE jobs SET state = ?, error = ?, started = ?, finished = ? WHERE id = ?");
-  s.bind(to_string(state)).bind(error.is_null() ? std::string() : error.dump()).bind(started).bind(finished).bind(id);
+  s.bind(to_string(state)).bind(error.is_null() ? std::string() : error.dump(-1, ' ', false, json::error_handler_t::replace)).bind(started).bind(finished).bind(id);
   s.step();
 }
 
 void Store::set_job_progress(const std::string& id, const json& progress) {
   std::lock_guard lock(mutex_);
   Statement s(db_, "UPDATE jobs SET progress = ? WHERE id = ?");
-  s.bind(progress.dump()).bind(id);
+  s.bind(progress.dump(-1, ' ', false, json::error_handler_t::replace)).bind(id);
   s.step();
 }
 

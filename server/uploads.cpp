@@ -229,6 +229,8 @@ void Uploads::remove_partial(const std::string& id) {
 }
 
 json Uploads::info(const std::string& id) {
+  // No upload can have another id; and the id names files (a NUL or 300 characters made this a 500).
+  if (!valid_name(id)) throw NotFoundError("no upload '" + id + "' (an upload id is 1-64 of [A-Za-z0-9._-])");
   if (auto u = store_.upload(id))
     return {{"id", u->id}, {"size", u->size}, {"sha256", u->sha256}, {"state", u->state}, {"created", u->created}};
   if (auto meta = partial_meta(id)) {
