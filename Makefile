@@ -10,7 +10,8 @@ DEB_PACKAGES = build-essential cmake pkg-config \
   pocl-opencl-icd opencl-c-headers opencl-clhpp-headers ocl-icd-opencl-dev clinfo \
   libopenimageio-dev libspdlog-dev nlohmann-json3-dev libcpp-httplib-dev doctest-dev \
   libsqlite3-dev libarchive-dev libeigen3-dev libzstd-dev unzip curl python3 python3-matplotlib \
-  pybind11-dev python3-dev python3-numpy python3-pytest
+  pybind11-dev python3-dev python3-numpy python3-pytest \
+  slurm-wlm munge
 
 .PHONY: deps build programs build-release test demo bench clean install
 
