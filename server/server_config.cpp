@@ -53,6 +53,7 @@ ServerConfig load_server_config(const ServerFlags& flags) {
   c.slurm.sbatch_options = d.string("slurm.sbatch_options");
   c.slurm.tile_command = d.string("slurm.tile_command");
   c.slurm.tiles_per_element = d.integer("slurm.tiles_per_element", 1, 1 << 20);
+  c.slurm.cpus_per_element = d.integer("slurm.cpus_per_element", 0, 1024);
   c.slurm.max_resubmits = d.integer("slurm.max_resubmits", 0, 100);
   c.slurm.poll_interval_s = d.number("slurm.poll_interval_s", 0.05, 600);
   if (c.executor == "slurm" && c.slurm.shared_folder.empty())

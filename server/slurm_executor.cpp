@@ -11,7 +11,9 @@
 #include <chrono>
 #include <cstring>
 #include <filesystem>
+#include <limits>
 #include <map>
+#include <optional>
 #include <set>
 #include <sstream>
 #include <thread>
@@ -105,24 +107,39 @@ class SlurmPhaseThree {
     write_script();
     size_t merged = w_.tiles_done, p4 = w_.p4_rows;
     const size_t per = size_t(std::max(1, s_.tiles_per_element));
+    size_t width = std::numeric_limits<size_t>::max();
     w_.progress(merged);
     try {
       for (int wave = 1; merged < w_.tiles; ++wave) {
         const fs::path snap = dir_ / ("wave-" + std::to_string(wave));
         const size_t snap_p4 = write_tile_snapshot(w_, snap.string());
         if (snap_p4 != p4) throw Error("internal", "the tile snapshot holds other P4 rows than merged");
-        const size_t base = merged, groups = (w_.tiles - merged + per - 1) / per;
+        // Speculation width: elements after the first are computed from the snapshot's code-books and
+        // are stale once an earlier tile composes P4 rows. All of them in the first wave (a material
+        // that composes nothing finishes in one); after a stale wave as many as were good, doubled
+        // after a wave without one, so a material that composes in every tile costs about 1.5
+        // element runs per tile, not one per remaining tile.
+        const size_t base = merged, groups = std::min(width, (w_.tiles - merged + per - 1) / per);
         std::vector<std::string> element(groups);  // the Slurm id ("J_i") of each element's latest run
         std::vector<int> attempts(groups, 0);
         const std::string job = submit(snap, base, per, "0-" + std::to_string(groups - 1));
         for (size_t i = 0; i < groups; ++i) element[i] = job + "_" + std::to_string(i);
-        spdlog::info("job {}: {} phase-3 tiles {}-{} of '{}' as Slurm array {} ({} elements, wave {})", spec_.id,
-                     w_.tiles - base, base, w_.tiles - 1, w_.material, job, groups, wave);
+        const size_t last = std::min(w_.tiles, base + groups * per) - 1;
+        spdlog::info("job {}: phase-3 tiles {}-{} of {} of '{}' as Slurm array {} ({} elements, wave {})", spec_.id, base,
+                     last, w_.tiles, w_.material, job, groups, wave);
         size_t next = 0;  // the element merged next
         bool stale = false;
         while (next < groups && !stale) {
           if (ctx_.cancelled()) throw CancelledError("cancelled by request");
-          const std::set<std::string> active = listed();
+          // squeue may fail for a moment (slurmctld restarting): then nothing is resubmitted this round.
+          std::optional<std::set<std::string>> active;
+          try {
+            active = listed();
+            squeue_failures_ = 0;
+          } catch (const Error& e) {
+            if (++squeue_failures_ > 30) throw;
+            spdlog::warn("job {}: {} (will ask again)", spec_.id, e.what());
+          }
           // In tile order: a finished part either continues the merged code-books or is stale.
           while (next < groups) {
             const std::string part = (snap / ("part-" + std::to_string(next))).string();
@@ -148,8 +165,8 @@ class SlurmPhaseThree {
             w_.progress(merged);
           }
           if (stale) break;
-          for (size_t i = next; i < groups; ++i) {
-            if (active.count(element[i]) || fs::exists(snap / ("part-" + std::to_string(i) + ".json"))) continue;
+          for (size_t i = next; active && i < groups; ++i) {
+            if (active->count(element[i]) || fs::exists(snap / ("part-" + std::to_string(i) + ".json"))) continue;
             if (++attempts[i] > s_.max_resubmits)
               throw Error("slurm", "Slurm element " + element[i] + " (tiles " + std::to_string(base + i * per) +
                                        "-) ended without its part " + std::to_string(attempts[i]) +
@@ -162,6 +179,7 @@ class SlurmPhaseThree {
           }
           if (next < groups) std::this_thread::sleep_for(std::chrono::duration<double>(s_.poll_interval_s));
         }
+        width = stale ? std::max<size_t>(1, next) : (width > groups ? width : 2 * width);
         if (stale) {
           spdlog::info("job {}: tiles from {} of '{}' were computed before tile {} composed P4 rows: again from a new snapshot",
                        spec_.id, merged, w_.material, merged - 1);
@@ -207,7 +225,7 @@ class SlurmPhaseThree {
   std::string submit(const fs::path& snap, size_t base, size_t per, const std::string& array) {
     std::vector<std::string> argv = {"sbatch", "--parsable", "--job-name=" + name_, "--array=" + array,
                                      "--output=" + (snap / "slurm-%A_%a.out").string(), "--chdir=" + dir_.string(),
-                                     "--cpus-per-task=1"};
+                                     "--cpus-per-task=" + std::to_string(cpus())};
     if (!s_.partition.empty()) argv.push_back("--partition=" + s_.partition);
     std::istringstream extra(s_.sbatch_options);
     for (std::string o; extra >> o;) argv.push_back(o);
@@ -220,6 +238,12 @@ class SlurmPhaseThree {
       throw Error("slurm", "sbatch failed: " + one_line(o.text));
     jobs_.insert(id);
     return id;
+  }
+
+  int cpus() const {
+    if (s_.cpus_per_element > 0) return s_.cpus_per_element;
+    const nlohmann::json& threads = w_.config.value("/schedule/threads"_json_pointer, nlohmann::json(1));
+    return threads.is_number_integer() ? std::max(1, threads.get<int>()) : 1;
   }
 
   // The array elements Slurm still lists (pending, running, completing) under this material's name.
@@ -260,6 +284,7 @@ class SlurmPhaseThree {
   std::set<std::string> jobs_;  // every Slurm job id submitted and not yet cancelled
   std::vector<Timing> timings_;
   size_t resubmitted_ = 0;
+  int squeue_failures_ = 0;  // in a row
 };
 
 }  // namespace

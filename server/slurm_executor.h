@@ -20,6 +20,7 @@ struct SlurmSettings {
   std::string sbatch_options;  // more sbatch options, split at white space (e.g. "--time=30 --account=lab")
   std::string tile_command;    // the btfvq CLI as the nodes run it; "" : "btfvq" next to btfvq-server
   int tiles_per_element = 4;   // phase-3 tiles per array element
+  int cpus_per_element = 0;    // sbatch --cpus-per-task; 0: the pipeline's schedule.threads (the tile's search threads)
   int max_resubmits = 3;       // per element, before the job fails
   double poll_interval_s = 1;  // squeue and the parts are looked at this often
 };
