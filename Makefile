@@ -11,7 +11,7 @@ DEB_PACKAGES = build-essential cmake pkg-config \
   libopenimageio-dev libspdlog-dev nlohmann-json3-dev libcpp-httplib-dev doctest-dev \
   libsqlite3-dev libarchive-dev libeigen3-dev libzstd-dev unzip curl python3 python3-matplotlib \
   pybind11-dev python3-dev python3-numpy python3-pytest \
-  chromium fonts-liberation
+  chromium fonts-liberation slurm-wlm munge
 
 .PHONY: deps build programs build-release test demo bench clean install
 

@@ -13,6 +13,10 @@
 
 #include "pipeline/codebook.h"
 
+namespace btfvq {
+struct PhaseThreeWork;  // pipeline/encode/tile_parts.h
+}
+
 namespace btfvq::server {
 
 // One material of a job, with its source already validated and resolved by the service.
@@ -75,8 +79,12 @@ struct JobContext {
 using Executor = std::function<void(const JobSpec&, const std::string& previous_db_path_or_empty,
                                     const std::string& output_path, JobContext&)>;
 
-// The real executor (server/pipeline_executor.cpp once the pipeline links).
-Executor make_pipeline_executor();
+// Phase 3 of one material done elsewhere (CompressOptions::remote_phase3): the Slurm executor.
+using RemotePhaseThree = std::function<void(const JobSpec&, JobContext&, const PhaseThreeWork&)>;
+
+// The real executor (server/pipeline_executor.cpp once the pipeline links); with `remote`, phase 3
+// of every material is handed to it (jobs with a target MSSIM take no checkpoints and stay local).
+Executor make_pipeline_executor(RemotePhaseThree remote = {});
 
 // Submit-time checks that need the pipeline (pipeline_hooks.cpp).
 // Throws ConfigError/InputError naming the key when `overrides` is not acceptable.

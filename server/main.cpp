@@ -75,7 +75,11 @@ int main(int argc, char** argv) {
     sigaddset(&signals, SIGTERM);
     pthread_sigmask(SIG_BLOCK, &signals, nullptr);
 
-    btfvq::server::Service service(config.service, btfvq::server::make_pipeline_executor());
+    btfvq::server::Service service(config.service, config.executor == "slurm"
+                                                       ? btfvq::server::make_slurm_executor(config.slurm)
+                                                       : btfvq::server::make_pipeline_executor());
+    if (config.executor == "slurm")
+      spdlog::info("executor: slurm (partition '{}', shared folder {})", config.slurm.partition, config.slurm.shared_folder);
     service.start();
     btfvq::server::HttpServer http(service, config.http);
     const int port = http.bind(config.host, config.port);

@@ -30,8 +30,8 @@ MaterialInput input_of(const MaterialSpec& m, uint64_t max_expanded_bytes) {
 
 }  // namespace
 
-Executor make_pipeline_executor() {
-  return [](const JobSpec& spec, const std::string& previous, const std::string& out, JobContext& ctx) {
+Executor make_pipeline_executor(RemotePhaseThree remote) {
+  return [remote](const JobSpec& spec, const std::string& previous, const std::string& out, JobContext& ctx) {
     std::vector<MaterialInput> inputs;
     for (const auto& m : spec.materials) inputs.push_back(input_of(m, ctx.max_expanded_bytes));
     CompressOptions options;
@@ -39,6 +39,7 @@ Executor make_pipeline_executor() {
     if (spec.target_mssim > 0) options.target = QualityTarget{spec.target_mssim, spec.pipeline};
     options.cancelled = ctx.cancelled;
     options.checkpoint_folder = ctx.work_folder;
+    if (remote) options.remote_phase3 = [&](const PhaseThreeWork& w) { remote(spec, ctx, w); };
     options.progress = [&](const CompressProgress& p) {
       ctx.progress({p.stage, p.phase, p.fraction, p.texels_done, p.texels_total, p.sizes, p.material, p.resumed_tile});
     };

@@ -45,6 +45,19 @@ ServerConfig load_server_config(const ServerFlags& flags) {
   k.idle_timeout_s = d.integer("http_idle_timeout_s", 1, 3600);
   c.http.token = d.string("token");
   c.log_level = d.string("log_level");
+  c.executor = d.string("executor");
+  if (c.executor != "local" && c.executor != "slurm")
+    throw ConfigError(d.origin() + ": executor '" + c.executor + "' must be \"local\" or \"slurm\"");
+  c.slurm.partition = d.string("slurm.partition");
+  c.slurm.shared_folder = d.string("slurm.shared_folder");
+  c.slurm.sbatch_options = d.string("slurm.sbatch_options");
+  c.slurm.tile_command = d.string("slurm.tile_command");
+  c.slurm.tiles_per_element = d.integer("slurm.tiles_per_element", 1, 1 << 20);
+  c.slurm.cpus_per_element = d.integer("slurm.cpus_per_element", 0, 1024);
+  c.slurm.max_resubmits = d.integer("slurm.max_resubmits", 0, 100);
+  c.slurm.poll_interval_s = d.number("slurm.poll_interval_s", 0.05, 600);
+  if (c.executor == "slurm" && c.slurm.shared_folder.empty())
+    throw ConfigError(d.origin() + ": executor \"slurm\" needs slurm.shared_folder (a folder every node sees)");
   d.check_unused();
 
   if (flags.listen) std::tie(c.host, c.port) = parse_listen(*flags.listen, "--listen");

@@ -6,6 +6,7 @@
 
 #include "server/http_server.h"
 #include "server/service.h"
+#include "server/slurm_executor.h"
 
 namespace btfvq::server {
 
@@ -15,6 +16,8 @@ struct ServerConfig {
   ServiceConfig service;
   HttpOptions http;
   std::string log_level = "info";
+  std::string executor = "local";  // "local" (worker threads) or "slurm" (phase 3 on a cluster)
+  SlurmSettings slurm;
 };
 
 struct ServerFlags {

@@ -247,9 +247,11 @@ void CheckpointFolder::append_tile(size_t tiles_done, const Codebooks& books, co
   w.put(report_json(so_far.report).dump());
   Writer record;
   record.put(uint64_t(w.bytes.size()));
-  append_durably(log_path(), record.bytes + w.bytes + sha256_hex(w.bytes));
+  append_durably(log_override_.empty() ? log_path() : log_override_, record.bytes + w.bytes + sha256_hex(w.bytes));
   logged_ = now;
 }
+
+void CheckpointFolder::append_records(const std::string& bytes) { append_durably(log_path(), bytes); }
 
 std::optional<SavedWork> CheckpointFolder::load() {
   const std::string state = read_all(state_path());

@@ -37,6 +37,9 @@ class CheckpointFolder {
   CheckpointFolder(std::string folder, std::string fingerprint);
 
   const std::string& folder() const { return folder_; }
+  const std::string& fingerprint() const { return fingerprint_; }
+  // P4 rows the state plus the log hold (after load() or save_state(); append_tile adds to it).
+  size_t p4_rows() const { return logged_[CodebookId::P4]; }
 
   // The saved work, or nothing when the folder is empty, damaged or of another fingerprint (said
   // in one log line). A torn last tile record is dropped; the log continues after the last good one.
@@ -49,12 +52,19 @@ class CheckpointFolder {
   // of `tile`'s texels in `so_far`.
   void append_tile(size_t tiles_done, const Codebooks& books, const ScheduleResult& so_far,
                    std::span<const uint32_t> tile);
+  // Later append_tile records go to `path` instead of the folder's tiles.log (a phase-3 tile part
+  // computed on another node, pipeline/encode/tile_parts.h): the same bytes, the same generation.
+  void log_to(std::string path) { log_override_ = std::move(path); }
+  // Appends records written by append_tile elsewhere (a checked tile part) to the folder's tiles.log,
+  // durably; load() replays them like its own.
+  void append_records(const std::string& bytes);
 
  private:
   std::string state_path() const;
   std::string log_path() const;
 
   std::string folder_, fingerprint_;
+  std::string log_override_;   // log_to()
   uint64_t generation_ = 0;    // of the state the log continues
   CodebookSizes logged_{};     // code-book rows the state plus the log hold
 };

@@ -6,7 +6,10 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <optional>
 #include <set>
+
+#include <unistd.h>
 
 #include <btfvq/error.h>
 #include "pipeline/encode/checkpoint.h"
@@ -111,6 +114,31 @@ ParameterDictionary pipeline_config(const nlohmann::json& overrides, const std::
 
 namespace {
 
+// The schedule asks for texels in Halton order: gather them into a small contiguous sample and
+// resample that in one call, so a scattered tile costs one launch.
+TexelSource texel_source(const MeasuredSample& sample, const ResampleOperator& op, double* seconds) {
+  const size_t pairs = sample.pair_count();
+  std::vector<std::vector<Direction>> lights;
+  for (size_t v = 0; v < sample.view_count(); ++v) lights.push_back(sample.lights(v));
+  return [&sample, &op, seconds, pairs, lights](const uint32_t* ids, size_t n, float* out) {
+    const auto t = std::chrono::steady_clock::now();
+    MeasuredSample tile(int(n), 1, sample.views(), lights, sample.dynamic());
+    for (size_t i = 0; i < n; ++i) {
+      const size_t from = size_t(ids[i]) * pairs * 3, to = i * pairs * 3;
+      if (sample.is_hdr())
+        std::memcpy(tile.hdr_data().data() + to, sample.hdr_data().data() + from, pairs * 3 * sizeof(float));
+      else
+        std::memcpy(tile.ldr_data().data() + to, sample.ldr_data().data() + from, pairs * 3);
+    }
+    op.apply(tile, 0, n, out);
+    *seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+  };
+}
+
+// Thrown by a checkpoint callback to end run_schedule early (the tiles are done elsewhere, or the
+// range of a tile part is complete).
+struct StopSchedule {};
+
 // Where one material's checkpoints go (compress_database with a work folder).
 struct MaterialCheckpoints {
   CheckpointFolder& folder;
@@ -144,25 +172,45 @@ CompressReport compress_one(Database& db, const MeasuredSample& sample, const st
   const ResampleOperator op(sample, s.grid, s.resample);
   const double operator_seconds = seconds_since(t_resample);
 
-  // The schedule asks for texels in Halton order: gather them into a small contiguous sample and
-  // resample that in one call, so a scattered tile costs one launch.
-  const size_t pairs = sample.pair_count();
-  std::vector<std::vector<Direction>> lights;
-  for (size_t v = 0; v < sample.view_count(); ++v) lights.push_back(sample.lights(v));
   double resample_seconds = 0;
-  const TexelSource source = [&](const uint32_t* ids, size_t n, float* out) {
-    const auto t = clock::now();
-    MeasuredSample tile(int(n), 1, sample.views(), lights, sample.dynamic());
-    for (size_t i = 0; i < n; ++i) {
-      const size_t from = size_t(ids[i]) * pairs * 3, to = i * pairs * 3;
-      if (sample.is_hdr())
-        std::memcpy(tile.hdr_data().data() + to, sample.hdr_data().data() + from, pairs * 3 * sizeof(float));
-      else
-        std::memcpy(tile.ldr_data().data() + to, sample.ldr_data().data() + from, pairs * 3);
-    }
-    op.apply(tile, 0, n, out);
-    resample_seconds += seconds_since(t);
+  const TexelSource source = texel_source(sample, op, &resample_seconds);
+
+  // Phase 3 elsewhere: hand the saved state over, then continue from the folder as a resumed run.
+  const bool remote = checkpoints && options.remote_phase3;
+  size_t phase3_from = 0;
+  const size_t phase3_tiles = phase3_tile_count(sample.texel_count(), s.schedule, &phase3_from);
+  std::optional<PhaseThreeState> remote_state;
+  auto hand_over = [&](size_t tiles_done) {
+    CheckpointFolder& folder = checkpoints->folder;
+    PhaseThreeWork w;
+    w.folder = folder.folder();
+    w.fingerprint = folder.fingerprint();
+    w.sample = &sample;
+    w.config = options.config.json();
+    w.material = name;
+    w.input = checkpoints->input;
+    w.tiles_done = tiles_done;
+    w.tiles = phase3_tiles;
+    w.p4_rows = folder.p4_rows();
+    w.tile_texels = size_t(s.schedule.tile_texels);
+    w.progress = [&](size_t done) {
+      const size_t total = sample.texel_count() - phase3_from, texels = std::min(total, done * size_t(s.schedule.tile_texels));
+      const double f = total ? double(texels) / double(total) : 1.0;
+      report("phase3", 3, texels, total, kStageStart[3] + f * (kStageEnd[3] - kStageStart[3]));
+    };
+    options.remote_phase3(w);
+    std::optional<SavedWork> saved = folder.load();
+    if (!saved || !saved->phase3 || saved->phase3->tiles_done != phase3_tiles)
+      throw Error("internal", "phase 3 of '" + name + "' elsewhere left " +
+                                  std::to_string(saved && saved->phase3 ? saved->phase3->tiles_done : 0) + " of " +
+                                  std::to_string(phase3_tiles) + " tiles in " + w.folder);
+    db.codebooks = std::move(saved->codebooks);
+    remote_state = std::move(saved->phase3);
   };
+  if (remote && resume && resume->tiles_done < phase3_tiles) {
+    hand_over(resume->tiles_done);
+    resume = &*remote_state;
+  }
 
   ScheduleCheckpoints saves;
   if (checkpoints) {
@@ -171,20 +219,31 @@ CompressReport compress_one(Database& db, const MeasuredSample& sample, const st
       if (tiles_done > 0) return checkpoints->folder.append_tile(tiles_done, db.codebooks, so_far, tile);
       const PhaseThreeState start{0, so_far};
       checkpoints->folder.save_state(checkpoints->input, db, checkpoints->first_new, &start);
+      if (remote) throw StopSchedule{};
     };
   }
   const auto t_schedule = clock::now();
-  const ScheduleResult result = run_schedule(
-      db.codebooks, sample.dynamic(), sample.width(), sample.height(), source, s.thresholds, s.similarity, s.schedule,
-      [&](const ScheduleProgress& p) {
-        const double f = p.total ? double(p.done) / double(p.total) : 1.0;
-        if (p.refining)
-          report("refine", 0, p.done, p.total, kStageEnd[2]);
-        else
-          report("phase" + std::to_string(p.phase), p.phase, p.done, p.total,
-                 kStageStart[p.phase] + f * (kStageEnd[p.phase] - kStageStart[p.phase]));
-      },
-      options.cancelled, saves);
+  auto schedule = [&] {
+    return run_schedule(
+        db.codebooks, sample.dynamic(), sample.width(), sample.height(), source, s.thresholds, s.similarity, s.schedule,
+        [&](const ScheduleProgress& p) {
+          const double f = p.total ? double(p.done) / double(p.total) : 1.0;
+          if (p.refining)
+            report("refine", 0, p.done, p.total, kStageEnd[2]);
+          else
+            report("phase" + std::to_string(p.phase), p.phase, p.done, p.total,
+                   kStageStart[p.phase] + f * (kStageEnd[p.phase] - kStageStart[p.phase]));
+        },
+        options.cancelled, saves);
+  };
+  ScheduleResult result;
+  try {
+    result = schedule();
+  } catch (const StopSchedule&) {
+    hand_over(0);
+    saves.resume = &*remote_state;
+    result = schedule();
+  }
 
   Material m;
   m.name = name;
@@ -244,7 +303,8 @@ CompressReport compress_one(Database& db, const MeasuredSample& sample, const st
                            {"reclaimed", reclaimed.removed},
                            {"reachable", reclaimed.reachable}}},
               {"codebook_sizes", CodebookSizes::of(db.codebooks)}};
-  if (resume) out.json["resumed_from_tile"] = resume->tiles_done;
+  if (resumed_tile >= 0) out.json["resumed_from_tile"] = resumed_tile;
+  if (remote) out.json["phase3_tiles_elsewhere"] = phase3_tiles - size_t(std::max<int64_t>(resumed_tile, 0));
   report("done", 0, sample.texel_count(), sample.texel_count(), 1.0);
   return out;
 }
@@ -254,6 +314,78 @@ CompressReport compress_one(Database& db, const MeasuredSample& sample, const st
 CompressReport compress_material(Database& db, const MeasuredSample& sample, const std::string& name,
                                  const CompressOptions& options) {
   return compress_one(db, sample, name, options, nullptr);
+}
+
+TilePart compute_tile_part(const std::string& snapshot, const std::string& sample_path, size_t first, size_t end,
+                           const std::string& out) {
+  namespace fs = std::filesystem;
+  using clock = std::chrono::steady_clock;
+  const auto t_load = clock::now();
+  auto text = [](const fs::path& p) {
+    std::ifstream in(p, std::ios::binary);
+    if (!in) throw InputError("cannot read '" + p.string() + "' (is this a tile snapshot folder?)");
+    return std::string{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+  };
+  const fs::path dir(snapshot);
+  const ParameterDictionary config(nlohmann::json::parse(text(dir / "config.json")), (dir / "config.json").string());
+  const PipelineSettings s = read_settings(config);
+  ComputeDevice::configure(s.device);
+  CheckpointFolder folder(snapshot, text(dir / "fingerprint"));
+  std::optional<SavedWork> saved = folder.load();
+  if (!saved || !saved->phase3) throw InputError("the snapshot " + snapshot + " holds no phase-3 state");
+  const MeasuredSample sample = read_raw_sample(sample_path);
+  const size_t tiles = phase3_tile_count(sample.texel_count(), s.schedule);
+  if (first >= end || end > tiles)
+    throw InputError("--tiles " + std::to_string(first) + "-" + std::to_string(end - 1) + ": the sample has phase-3 tiles 0-" +
+                     std::to_string(tiles - 1));
+  if (saved->phase3->tiles_done > first || saved->phase3->result.p6_index.size() != sample.texel_count())
+    throw InputError("the snapshot " + snapshot + " is not of this sample or already past tile " + std::to_string(first));
+  const ResampleOperator op(sample, s.grid, s.resample);
+  double resample_seconds = 0;
+  const TexelSource source = texel_source(sample, op, &resample_seconds);
+
+  TilePart part;
+  part.first = first;
+  part.end = end;
+  part.p4_from = folder.p4_rows();
+  part.load_seconds = std::chrono::duration<double>(clock::now() - t_load).count();
+  const std::string records = out + ".records-" + std::to_string(::getpid());
+  std::error_code ec;
+  fs::remove(records, ec);
+  fs::remove(out + ".json", ec);
+  folder.log_to(records);
+  Codebooks books = std::move(saved->codebooks);
+  PhaseThreeState start = std::move(*saved->phase3);
+  start.tiles_done = first;  // speculative when the snapshot is older: the merge checks p4_from
+  ScheduleCheckpoints saves;
+  saves.resume = &start;
+  const auto t0 = clock::now();
+  auto t_tile = t0;
+  saves.save = [&](size_t tiles_done, const ScheduleResult& so_far, std::span<const uint32_t> tile) {
+    folder.append_tile(tiles_done, books, so_far, tile);
+    const auto now = clock::now();
+    part.tile_seconds.push_back(std::chrono::duration<double>(now - t_tile).count());
+    t_tile = now;
+    if (tiles_done >= end) throw StopSchedule{};
+  };
+  try {
+    run_schedule(books, sample.dynamic(), sample.width(), sample.height(), source, s.thresholds, s.similarity,
+                 s.schedule, {}, {}, saves);
+  } catch (const StopSchedule&) {
+  }
+  part.seconds = std::chrono::duration<double>(clock::now() - t0).count();
+  part.p4_end = books.p4_index.rows();
+  const std::string bytes = text(records);
+  part.bytes = bytes.size();
+  part.sha256 = sha256_hex(bytes);
+  fs::rename(records, out, ec);
+  if (ec) throw InputError("cannot rename '" + records + "' to '" + out + "': " + ec.message());
+  const nlohmann::json manifest = {{"first", part.first}, {"end", part.end}, {"p4_from", part.p4_from},
+                                   {"p4_end", part.p4_end}, {"bytes", part.bytes}, {"sha256", part.sha256},
+                                   {"load_seconds", part.load_seconds}, {"seconds", part.seconds},
+                                   {"tile_seconds", part.tile_seconds}};
+  write_file_atomically(out + ".json", manifest.dump(1));
+  return part;
 }
 
 namespace {

@@ -17,6 +17,7 @@
 #include "pipeline/codebook.h"
 #include "pipeline/util/config.h"
 #include "pipeline/encode/schedule.h"
+#include "pipeline/encode/tile_parts.h"
 
 namespace btfvq {
 
@@ -49,6 +50,11 @@ struct CompressOptions {
   // checkpoints of the same work (inputs, settings, previous file) continues from them. The caller
   // removes them (remove_checkpoints) once the database is where it belongs. Not with `target`.
   std::string checkpoint_folder;
+  // Phase 3 elsewhere (the server's Slurm executor, docs/cluster.md): called, with a checkpoint
+  // folder, once an input's phase-3 state is saved there; it returns when the folder's tiles.log
+  // holds every phase-3 tile of the input, which then continues from the checkpoint as a resumed
+  // one does (the same bytes as a local phase 3). May throw (CancelledError, ...).
+  std::function<void(const PhaseThreeWork&)> remote_phase3;
 };
 
 struct CompressReport {

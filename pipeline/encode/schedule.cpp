@@ -96,6 +96,15 @@ void phase_sizes(size_t texels, const ScheduleSettings& s, size_t* phase1, size_
   *phase2 = b;
 }
 
+size_t phase3_tile_count(size_t texels, const ScheduleSettings& s, size_t* first_texel) {
+  size_t n1, n2;
+  phase_sizes(texels, s, &n1, &n2);
+  const bool refining = s.refine.iterations > 0 && n1 + n2 > 0;  // as run_schedule decides it
+  const size_t from = refining ? 0 : n1 + n2, tile = size_t(s.tile_texels);
+  if (first_texel) *first_texel = from;
+  return (texels - from + tile - 1) / tile;
+}
+
 ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height, const TexelSource& source,
                             const Thresholds& thresholds, const SimilaritySettings& similarity,
                             const ScheduleSettings& schedule, const std::function<void(const ScheduleProgress&)>& progress,

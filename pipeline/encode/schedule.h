@@ -97,6 +97,11 @@ std::vector<uint32_t> halton_order(int width, int height);
 // Number of texels in phases 1 and 2 (at least one in phase 1).
 void phase_sizes(size_t texels, const ScheduleSettings& s, size_t* phase1, size_t* phase2);
 
+// Number of phase-3 tiles run_schedule makes of `texels` (every texel with a refinement, else those
+// after phases 1 and 2, in tiles of tile_texels): what a checkpoint's tiles_done counts to.
+// `first_texel`: where phase 3 starts in Halton order.
+size_t phase3_tile_count(size_t texels, const ScheduleSettings& s, size_t* first_texel = nullptr);
+
 ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height, const TexelSource& source,
                             const Thresholds& thresholds, const SimilaritySettings& similarity,
                             const ScheduleSettings& schedule,
