@@ -100,9 +100,11 @@ TEST_CASE("nearest() returns the k first of all entries sorted by (distance, ind
     for (uint32_t e = 0; e < rows.size(); ++e) all.push_back({reference_distance(q.data(), rows[e].data(), width), e});
     std::sort(all.begin(), all.end());
     for (size_t k : {size_t(1), size_t(16), size_t(32)}) {
-      std::vector<uint32_t> got;
+      std::vector<uint32_t> got, got2;
       table.nearest(q.data(), k, got);
+      table.nearest(q.data(), k, got2, 2);  // 1500 x 336 values: the scan is split over two threads
       REQUIRE(got.size() == k);
+      CHECK(got2 == got);
       std::vector<uint32_t> want;
       for (size_t i = 0; i < k; ++i) want.push_back(all[i].second);
       CHECK(got == want);

@@ -13,6 +13,7 @@
 
 #include <btfvq/error.h>
 #include "pipeline/util/atomic_file.h"
+#include "pipeline/util/bytes.h"
 #include "pipeline/util/sha256.h"
 
 namespace btfvq {
@@ -24,58 +25,8 @@ namespace {
 constexpr char kStateMagic[8] = {'B', 'T', 'F', 'V', 'Q', 'C', 'K', '1'};
 constexpr size_t kDigest = 64;  // hex SHA-256 after every state body and log record
 
-// Little-endian-as-in-memory fields: a checkpoint is read back by the same build on the same machine.
-class Writer {
- public:
-  template <class T>
-  void put(T v) {
-    bytes.append(reinterpret_cast<const char*>(&v), sizeof v);
-  }
-  template <class T>
-  void put(const std::vector<T>& v) {
-    put(uint64_t(v.size()));
-    bytes.append(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(T));
-  }
-  void put(const std::string& s) {
-    put(uint64_t(s.size()));
-    bytes += s;
-  }
-  std::string bytes;
-};
-
-class Reader {
- public:
-  Reader(const char* p, size_t n) : p_(p), n_(n) {}
-  template <class T>
-  T get() {
-    T v;
-    std::memcpy(&v, take(sizeof v), sizeof v);
-    return v;
-  }
-  template <class T>
-  void get(std::vector<T>& v) {
-    const uint64_t n = get<uint64_t>();
-    if (n > (n_ - at_) / sizeof(T)) throw CorruptError("checkpoint: a length past the end");
-    v.resize(size_t(n));
-    std::memcpy(v.data(), take(size_t(n) * sizeof(T)), size_t(n) * sizeof(T));
-  }
-  std::string str() {
-    const uint64_t n = get<uint64_t>();
-    if (n > n_ - at_) throw CorruptError("checkpoint: a length past the end");
-    return std::string(take(size_t(n)), size_t(n));
-  }
-  bool done() const { return at_ == n_; }
-
- private:
-  const char* take(size_t n) {
-    if (n > n_ - at_) throw CorruptError("checkpoint: truncated");
-    const char* p = p_ + at_;
-    at_ += n;
-    return p;
-  }
-  const char* p_;
-  size_t n_, at_ = 0;
-};
+using Writer = ByteWriter;
+using Reader = ByteReader;
 
 template <class T>
 void put_table(Writer& w, const Table<T>& t) {
@@ -150,11 +101,7 @@ ScheduleReport report_of(const json& j) {
 
 uint64_t generation_of(const std::string& digest) { return std::stoull(digest.substr(0, 16), nullptr, 16); }
 
-std::string read_all(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return {};
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
+std::string read_all(const std::string& path) { return fs::exists(path) ? read_file(path) : std::string(); }
 
 // Appends and makes durable before returning: a tile is done only once its record is on disk.
 // Failures are atomic_file's errors (a full disk is a NoSpaceError naming ENOSPC).
@@ -263,7 +210,7 @@ std::optional<SavedWork> CheckpointFolder::load() {
     const std::string body = state.substr(0, state.size() - kDigest);
     const std::string digest = state.substr(body.size());
     if (sha256_hex(body) != digest) throw CorruptError("its checksum does not match");
-    Reader r(body.data() + sizeof kStateMagic, body.size() - sizeof kStateMagic);
+    Reader r(body.data() + sizeof kStateMagic, body.size() - sizeof kStateMagic, "checkpoint");
     if (r.str() != fingerprint_) {
       spdlog::info("the work folder {} holds the checkpoint of other work: starting from the beginning", folder_);
       return std::nullopt;
@@ -320,7 +267,7 @@ std::optional<SavedWork> CheckpointFolder::load() {
       const std::string body = log.substr(at, size_t(n));
       if (sha256_hex(body) != log.substr(at + size_t(n), kDigest)) break;
       try {
-        Reader r(body.data(), body.size());
+        Reader r(body.data(), body.size(), "checkpoint");
         if (r.get<uint64_t>() != generation_ || r.get<uint64_t>() != p.tiles_done + 1) break;
         if (r.get<uint64_t>() != k.p4_index.rows()) break;
         std::vector<uint32_t> p4_index, ids;

@@ -321,11 +321,7 @@ TilePart compute_tile_part(const std::string& snapshot, const std::string& sampl
   namespace fs = std::filesystem;
   using clock = std::chrono::steady_clock;
   const auto t_load = clock::now();
-  auto text = [](const fs::path& p) {
-    std::ifstream in(p, std::ios::binary);
-    if (!in) throw InputError("cannot read '" + p.string() + "' (is this a tile snapshot folder?)");
-    return std::string{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-  };
+  auto text = [](const fs::path& p) { return read_file(p.string(), " (is this a tile snapshot folder?)"); };
   const fs::path dir(snapshot);
   const ParameterDictionary config(nlohmann::json::parse(text(dir / "config.json")), (dir / "config.json").string());
   const PipelineSettings s = read_settings(config);

@@ -227,6 +227,8 @@ void Encoder::sync() {
 namespace {
 // Leaders whose lists a 1D search scans (ProxyIndex::nearest).
 constexpr int kProbes = 8;
+// Candidate planes a composite search needs before its candidates are scored on several threads.
+constexpr size_t kParallelPlanes = 32;
 // Stored rows a repair tries for a failing row of a plane before it stores the row exactly.
 constexpr int kReuseCandidates = 16;
 
@@ -605,7 +607,7 @@ void Encoder::order_composite(const Query& q, int level, Ctx& ctx) const {
     for (uint32_t e = 0; e < n; ++e) ctx.order.push_back(e);
     return;
   }
-  sig.nearest(qsig.data(), size_t(k), ctx.order);
+  sig.nearest(qsig.data(), size_t(k), ctx.order, threads_);
   if (limit > 0) return;
   ctx.tried.assign(n, 0);
   for (uint32_t e : ctx.order) ctx.tried[e] = 1;
@@ -673,10 +675,13 @@ Encoder::Match Encoder::search_composite_in(const Query& q, int level, const std
     else planes.assign(1, PlaneRef{books_.m.at(e, 0), books_.m.at(e, 1), 1.0f});
     return evaluate_composite(q, planes.data(), int(planes.size()), bound, c, sc, s);
   };
-  // P4 and P3 candidates are whole 3D/4D slices: worth spreading over the threads. The result is the
-  // best candidate whatever the order they are scored in (ties to the lowest index), and a bound
-  // found by any thread prunes only candidates that cannot win, so it equals the sequential search.
-  const size_t slots = level >= 3 && threads_ > 1 && order.size() > 1 ? parallel_slots(order.size(), {threads_, 1}) : 1;
+  // Candidates are spread over the threads when there are planes enough to pay for the hand-over
+  // (a P4 candidate is 112 planes, P3 7, M 1: an M search goes parallel with a full candidate list
+  // only). The result is the best candidate whatever the order they are scored in (ties to the
+  // lowest index), and a bound found by any thread prunes only candidates that cannot win, so it
+  // equals the sequential search.
+  const bool worth = order.size() > 1 && order.size() * size_t(q.planes) >= kParallelPlanes;
+  const size_t slots = threads_ > 1 && worth ? parallel_slots(order.size(), {threads_, 1}) : 1;
   if (slots == 1) {
     run_search(order, settings_.pruning, threshold_score,
                [&](uint32_t e, double bound, double* sc, float* s) { return eval(ctx, planes, e, bound, sc, s); },

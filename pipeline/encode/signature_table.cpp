@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <numeric>
 
+#include "pipeline/util/parallel.h"
+
 namespace btfvq {
 
 namespace {
@@ -64,7 +66,7 @@ void SignatureTable::scaled_distances(const float* q, size_t first, size_t last,
   rows_.distances(q, first, last, out);
 }
 
-void SignatureTable::nearest(const float* q, size_t k, std::vector<uint32_t>& out) const {
+void SignatureTable::nearest(const float* q, size_t k, std::vector<uint32_t>& out, size_t threads) const {
   const size_t n = size();
   k = std::min(k, n);
   out.resize(n);
@@ -73,7 +75,15 @@ void SignatureTable::nearest(const float* q, size_t k, std::vector<uint32_t>& ou
     return;
   }
   std::vector<float> d(n);
-  rows_.distances(q, 0, n, d.data());
+  // A large level is split over the threads (the growing phases search on one thread otherwise);
+  // each entry's distance is the same on any thread.
+  const size_t grain = 64 * kLanes;
+  if (threads != 1 && n * width() >= 64 * 1024)
+    parallel_for(0, (n + grain - 1) / grain, [&](size_t c) {
+      rows_.distances(q, c * grain, std::min(n, (c + 1) * grain), d.data() + c * grain);
+    }, ParallelOptions{threads, 1});
+  else
+    rows_.distances(q, 0, n, d.data());
   std::iota(out.begin(), out.end(), 0u);
   auto closer = [&](uint32_t a, uint32_t b) { return d[a] < d[b] || (d[a] == d[b] && a < b); };
   std::nth_element(out.begin(), out.begin() + ptrdiff_t(k - 1), out.end(), closer);

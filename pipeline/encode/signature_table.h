@@ -29,8 +29,9 @@ class SignatureTable {
   const float* row(size_t e) const { return values_.data() + e * width(); }
   // out[e - first] = scaled_distance(q, row(e), width) for e in [first, last).
   void scaled_distances(const float* q, size_t first, size_t last, float* out) const;
-  // The min(k, size()) entries nearest to q, nearest first, ties to the lower index.
-  void nearest(const float* q, size_t k, std::vector<uint32_t>& out) const;
+  // The min(k, size()) entries nearest to q, nearest first, ties to the lower index; the scan on
+  // up to `threads` threads (ParallelOptions::threads), the result the same for any number.
+  void nearest(const float* q, size_t k, std::vector<uint32_t>& out, size_t threads = 1) const;
 
  private:
   struct Blocks {  // n entries of `width` values, kLanes per block, with their sums of squares

@@ -2,12 +2,11 @@
 
 #include <cstring>
 #include <filesystem>
-#include <fstream>
-#include <iterator>
 
 #include <btfvq/error.h>
 #include "pipeline/encode/checkpoint.h"
 #include "pipeline/util/atomic_file.h"
+#include "pipeline/util/bytes.h"
 #include "pipeline/util/sha256.h"
 
 namespace btfvq {
@@ -18,26 +17,6 @@ namespace {
 
 constexpr char kSampleMagic[8] = {'B', 'T', 'F', 'V', 'Q', 'S', 'M', '1'};
 constexpr size_t kDigest = 64;
-
-std::string read_all(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw InputError("cannot read '" + path + "'");
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
-
-template <class T>
-void put(std::string& out, T v) {
-  out.append(reinterpret_cast<const char*>(&v), sizeof v);
-}
-
-template <class T>
-T get(const std::string& in, size_t& at) {
-  if (sizeof(T) > in.size() - at) throw CorruptError("raw sample: truncated");
-  T v;
-  std::memcpy(&v, in.data() + at, sizeof v);
-  at += sizeof v;
-  return v;
-}
 
 void copy_into(const fs::path& from, const fs::path& to) {
   std::error_code ec;
@@ -67,47 +46,44 @@ size_t write_tile_snapshot(const PhaseThreeWork& work, const std::string& dir) {
 }
 
 void write_raw_sample(const MeasuredSample& s, const std::string& path) {
-  std::string out(kSampleMagic, sizeof kSampleMagic);
-  put(out, int32_t(s.width()));
-  put(out, int32_t(s.height()));
-  put(out, uint8_t(s.dynamic()));
-  put(out, uint64_t(s.view_count()));
+  ByteWriter w;
+  w.bytes.assign(kSampleMagic, sizeof kSampleMagic);
+  w.put(int32_t(s.width()));
+  w.put(int32_t(s.height()));
+  w.put(uint8_t(s.dynamic()));
+  w.put(uint64_t(s.view_count()));
   for (size_t v = 0; v < s.view_count(); ++v) {
-    put(out, s.views()[v]);
-    put(out, uint64_t(s.lights(v).size()));
-    for (const Direction& d : s.lights(v)) put(out, d);
+    w.put(s.views()[v]);
+    w.put(s.lights(v));
   }
   if (s.is_hdr())
-    out.append(reinterpret_cast<const char*>(s.hdr_data().data()), s.hdr_data().size() * sizeof(float));
+    w.bytes.append(reinterpret_cast<const char*>(s.hdr_data().data()), s.hdr_data().size() * sizeof(float));
   else
-    out.append(reinterpret_cast<const char*>(s.ldr_data().data()), s.ldr_data().size());
-  write_file_atomically(path, out);
+    w.bytes.append(reinterpret_cast<const char*>(s.ldr_data().data()), s.ldr_data().size());
+  write_file_atomically(path, w.bytes);
 }
 
 MeasuredSample read_raw_sample(const std::string& path) {
-  const std::string in = read_all(path);
+  const std::string in = read_file(path);
   if (in.size() < sizeof kSampleMagic || std::memcmp(in.data(), kSampleMagic, sizeof kSampleMagic) != 0)
     throw InputError("'" + path + "' is not a raw sample (btfvq tile reads what the server wrote)");
-  size_t at = sizeof kSampleMagic;
-  const int width = get<int32_t>(in, at), height = get<int32_t>(in, at);
-  const Dynamic dynamic = Dynamic(get<uint8_t>(in, at));
-  const uint64_t views = get<uint64_t>(in, at);
+  ByteReader r(in.data() + sizeof kSampleMagic, in.size() - sizeof kSampleMagic, "raw sample");
+  const int width = r.get<int32_t>(), height = r.get<int32_t>();
+  const Dynamic dynamic = Dynamic(r.get<uint8_t>());
+  const uint64_t views = r.get<uint64_t>();
   if (views > in.size()) throw CorruptError("raw sample: a view count past the end");
   std::vector<Direction> view_list;
-  std::vector<std::vector<Direction>> lights;
+  std::vector<std::vector<Direction>> lights(views);
   for (uint64_t v = 0; v < views; ++v) {
-    view_list.push_back(get<Direction>(in, at));
-    const uint64_t n = get<uint64_t>(in, at);
-    if (n > in.size()) throw CorruptError("raw sample: a light count past the end");
-    lights.emplace_back();
-    for (uint64_t l = 0; l < n; ++l) lights.back().push_back(get<Direction>(in, at));
+    view_list.push_back(r.get<Direction>());
+    r.get(lights[v]);
   }
   MeasuredSample s(width, height, view_list, lights, dynamic);
   const size_t bytes = s.is_hdr() ? s.hdr_data().size() * sizeof(float) : s.ldr_data().size();
-  if (in.size() - at != bytes) throw CorruptError("raw sample: " + std::to_string(in.size() - at) +
-                                                  " value bytes where the geometry needs " + std::to_string(bytes));
+  if (r.left() != bytes)
+    throw CorruptError("raw sample: " + std::to_string(r.left()) + " value bytes where the geometry needs " + std::to_string(bytes));
   std::memcpy(s.is_hdr() ? static_cast<void*>(s.hdr_data().data()) : static_cast<void*>(s.ldr_data().data()),
-              in.data() + at, bytes);
+              r.take(bytes), bytes);
   return s;
 }
 
@@ -116,7 +92,7 @@ TilePart check_tile_part(const std::string& out) {
   if (!fs::exists(manifest_path)) throw InputError("the tile part " + out + " is not finished (no manifest)");
   TilePart p;
   try {
-    const json m = json::parse(read_all(manifest_path));
+    const json m = json::parse(read_file(manifest_path));
     p.first = m.at("first");
     p.end = m.at("end");
     p.p4_from = m.at("p4_from");
@@ -129,7 +105,7 @@ TilePart check_tile_part(const std::string& out) {
   } catch (const json::exception& e) {
     throw CorruptError("the manifest of the tile part " + out + " is damaged: " + e.what());
   }
-  const std::string bytes = read_all(out);
+  const std::string bytes = read_file(out);
   if (bytes.size() != p.bytes)
     throw CorruptError("the tile part " + out + " has " + std::to_string(bytes.size()) + " bytes, its manifest says " +
                        std::to_string(p.bytes));
@@ -162,7 +138,7 @@ TilePart check_tile_part(const std::string& out) {
 
 void merge_tile_part(const PhaseThreeWork& work, const std::string& out) {
   CheckpointFolder folder(work.folder, work.fingerprint);
-  folder.append_records(read_all(out));
+  folder.append_records(read_file(out));
 }
 
 }  // namespace btfvq

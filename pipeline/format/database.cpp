@@ -373,7 +373,7 @@ bool same_section(const SectionEntry& a, const SectionEntry& b) {
   return a.kind == b.kind && a.version == b.version && a.codebook == b.codebook && a.material == b.material;
 }
 
-std::vector<uint8_t> read_file(const std::string& path) {
+std::vector<uint8_t> read_database_file(const std::string& path) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec)) throw InputError("cannot open database '" + path + "': not a regular file");
   const uintmax_t size = std::filesystem::file_size(path, ec);
@@ -716,7 +716,7 @@ void write_database(const Database& db, const std::string& path, const PackSetti
   std::vector<uint8_t> previous;
   if (is_database_file(path)) {
     try {
-      previous = read_file(path);
+      previous = read_database_file(path);
     } catch (const Error&) {
       previous.clear();
     }
@@ -734,10 +734,10 @@ uint64_t raw_bytes(const Database& db) {
   return raw;
 }
 
-Database read_database(const std::string& path) { return parse_database(read_file(path), path); }
+Database read_database(const std::string& path) { return parse_database(read_database_file(path), path); }
 
 DatabaseInfo inspect_database(const std::string& path) {
-  const auto bytes = read_file(path);
+  const auto bytes = read_database_file(path);
   const Database db = parse_database(bytes, path);
   DatabaseInfo info;
   info.head = parse_head(bytes.data(), bytes.size(), path);

@@ -7,6 +7,8 @@
 #include <cerrno>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 
 #include <btfvq/error.h>
 
@@ -103,6 +105,14 @@ void publish_file(const std::string& temp, const std::string& target_path) {
   // The rename is done: a folder that cannot be synced only makes it less durable, and failing
   // now would report an error for a file that is already in place.
   sync_one(fs::absolute(target).parent_path(), true);
+}
+
+std::string read_file(const std::string& path, const std::string& hint) {
+  std::ifstream in(path, std::ios::binary);
+  std::string bytes;
+  if (in) bytes.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  if (!in && !in.eof()) throw InputError("cannot read '" + path + "'" + hint);
+  return bytes;
 }
 
 void write_file_atomically(const std::string& path, const void* data, size_t size) {

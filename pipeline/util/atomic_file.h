@@ -71,4 +71,7 @@ inline void write_file_atomically(const std::string& path, const std::string& te
   write_file_atomically(path, text.data(), text.size());
 }
 
+// The whole file, or InputError "cannot read '<path>'<hint>".
+std::string read_file(const std::string& path, const std::string& hint = "");
+
 }  // namespace btfvq
