@@ -23,22 +23,11 @@ using nlohmann::json;
 
 namespace {
 
-struct Run {
-  int status;
-  std::string out;
-};
+using Run = CliRun;
 
 Run cli(const fs::path& dir, const std::string& args) {
-  Run r;
-  const fs::path out = dir / "cli-stdout.txt";
-  std::string all;
-  r.status = run_command((bin_dir() / "btfvq").string() + " " + args + " > " + out.string(), &all);
-  std::ifstream in(out);
-  std::stringstream s;
-  s << in.rdbuf();
-  r.out = s.str();
-  while (!r.out.empty() && (r.out.back() == '\n' || r.out.back() == ' ')) r.out.pop_back();
-  if (r.status != 0) MESSAGE("btfvq " << args << " -> " << r.status << ": " << all);
+  Run r = run_cli(dir, args);
+  if (r.status != 0) MESSAGE("btfvq " << args << " -> " << r.status << ": " << r.all);
   return r;
 }
 
