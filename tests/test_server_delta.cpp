@@ -23,11 +23,22 @@ using nlohmann::json;
 
 namespace {
 
-using Run = CliRun;
+struct Run {
+  int status;
+  std::string out;
+};
 
 Run cli(const fs::path& dir, const std::string& args) {
-  Run r = run_cli(dir, args);
-  if (r.status != 0) MESSAGE("btfvq " << args << " -> " << r.status << ": " << r.all);
+  Run r;
+  const fs::path out = dir / "cli-stdout.txt";
+  std::string all;
+  r.status = run_command((bin_dir() / "btfvq").string() + " " + args + " > " + out.string(), &all);
+  std::ifstream in(out);
+  std::stringstream s;
+  s << in.rdbuf();
+  r.out = s.str();
+  while (!r.out.empty() && (r.out.back() == '\n' || r.out.back() == ' ')) r.out.pop_back();
+  if (r.status != 0) MESSAGE("btfvq " << args << " -> " << r.status << ": " << all);
   return r;
 }
 

@@ -30,12 +30,22 @@ using nlohmann::json;
 
 namespace {
 
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
 
 std::string cli(const fs::path& dir, const std::string& args) {
-  const CliRun r = run_cli(dir, args);
-  INFO("btfvq " << args << ": " << r.all);
-  REQUIRE(r.status == 0);
-  return r.out;
+  const fs::path out = dir / "cli-stdout.txt";
+  std::string all;
+  const int status = run_command((bin_dir() / "btfvq").string() + " " + args + " > " + out.string(), &all);
+  INFO("btfvq " << args << ": " << all);
+  REQUIRE(status == 0);
+  std::string text = slurp(out);
+  while (!text.empty() && (text.back() == '\n' || text.back() == ' ')) text.pop_back();
+  return text;
 }
 
 struct Image {
@@ -67,7 +77,7 @@ double bytes_served(const std::string& url) {
 // Stored bytes of the sections one material needs: its own and every code-book chunk of its version
 // or before (what the page must fetch, besides the head).
 uint64_t needed_bytes(const fs::path& file, const std::string& material) {
-  const std::string bytes = read_text(file);
+  const std::string bytes = slurp(file);
   const auto* data = reinterpret_cast<const uint8_t*>(bytes.data());
   const DatabaseHead head = parse_head(data, bytes.size(), file.string());
   uint32_t version = 0;
@@ -92,7 +102,7 @@ json run_browser(const std::string& page, const fs::path& out) {
   const std::string script = (fs::path(BTFVQ_SOURCE_DIR) / "tests" / "viewer_browser.py").string();
   const int status = run_command("python3 " + script + " '" + page + "' " + out.string() + " 120", &output);
   if (status != 0) FAIL("viewer_browser.py: " << output);
-  return json::parse(read_text(out / "record.json"));
+  return json::parse(slurp(out / "record.json"));
 }
 
 // Mean absolute difference per channel of `render` and the canvas sampled at the centre of each of

@@ -5,8 +5,6 @@
 #include <unistd.h>
 
 #include <array>
-#include <fstream>
-#include <sstream>
 #include <cstdio>
 #include <cstdlib>
 #include <sys/wait.h>
@@ -63,22 +61,6 @@ int run_command(const std::string& command, std::string* output) {
   const int status = ::pclose(pipe);
   if (output) *output = out;
   return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
-
-std::string read_text(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
-CliRun run_cli(const std::filesystem::path& dir, const std::string& args) {
-  CliRun r;
-  const std::filesystem::path out = dir / "cli-stdout.txt";
-  r.status = run_command((bin_dir() / "btfvq").string() + " " + args + " > " + out.string(), &r.all);
-  r.out = read_text(out);
-  while (!r.out.empty() && (r.out.back() == '\n' || r.out.back() == ' ')) r.out.pop_back();
-  return r;
 }
 
 }  // namespace btfvq::test

@@ -17,15 +17,4 @@ int free_loopback_port();
 // Runs a shell command, returns its exit status; stdout+stderr go to `output` when given.
 int run_command(const std::string& command, std::string* output = nullptr);
 
-// The whole file as text ("" when it cannot be read).
-std::string read_text(const std::filesystem::path& path);
-
-// build/bin/btfvq run with `args` (shell words) from `dir`'s point of view: its exit status, its
-// stdout without trailing blanks (through a file in `dir`), and stdout+stderr together in `all`.
-struct CliRun {
-  int status = 0;
-  std::string out, all;
-};
-CliRun run_cli(const std::filesystem::path& dir, const std::string& args);
-
 }  // namespace btfvq::test
