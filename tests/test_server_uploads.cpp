@@ -76,21 +76,29 @@ void cut_piece(const TestServer& t, const std::string& id, const std::string& da
   send_all(fd, head.data(), head.size());
   send_all(fd, data.data() + first, sent);
   ::close(fd);
-  // The server holds the id until its handler sees the end of the connection, and on a loaded
-  // machine it may not even have accepted the connection yet: wait until the piece's bytes are
-  // taken in (a probe at offset 0 is refused with 409 upload_offset once nothing holds the id).
-  const auto until = Clock::now() + std::chrono::seconds(30);
+  // On a loaded machine the server may not even have accepted the connection yet, and a probing
+  // PUT could then hold the id first and turn the piece away as "in progress" (this failed CI once).
+  // So: first GET (which holds nothing) until the piece's bytes are on disk, then PUT probes at
+  // offset 0 until the piece's handler has let go (409 upload_offset instead of 409 conflict).
+  const auto until = Clock::now() + std::chrono::seconds(120);
   auto c = t.client();
+  std::string last;
+  bool on_disk = false;
   while (Clock::now() < until) {
-    auto r = c.Put("/v1/uploads/" + id, httplib::Headers{{"Content-Range", range(0, 1, data.size())}}, "x",
-                   "application/octet-stream");
+    auto r = on_disk ? c.Put("/v1/uploads/" + id, httplib::Headers{{"Content-Range", range(0, 1, data.size())}}, "x",
+                             "application/octet-stream")
+                     : c.Get("/v1/uploads/" + id);
     REQUIRE(r);
-    if (r->status == 409 && json::parse(r->body)["error"]["code"] == "upload_offset" &&
-        json::parse(r->body)["error"]["received"] == first + sent)
+    last = std::to_string(r->status) + " " + r->body;
+    const json body = json::parse(r->body);
+    if (!on_disk)
+      on_disk = r->status == 200 && body.value("received", uint64_t(0)) == first + sent;
+    else if (r->status == 409 && body["error"]["code"] == "upload_offset" && body["error"]["received"] == first + sent)
       return;
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
-  FAIL("the server did not take in the cut-off piece of " << id);
+  FAIL("the server did not take in the " << sent << " bytes at " << first << " of " << id
+                                         << "; the last probe answered " << last);
 }
 
 // A sample zip of about `size` bytes that a job accepts: the tiny sample's images plus a padding
