@@ -115,3 +115,59 @@ TEST_CASE("nearest() returns the k first of all entries sorted by (distance, ind
   CHECK(few.size() == rows.size());
   CHECK(few[0] == 0);
 }
+
+TEST_CASE("nearest_many() of several queries at once, and extend() after appends, equal nearest()") {
+  std::mt19937 rng(8);
+  std::normal_distribution<float> value(0.0f, 1.0f);
+  const int width = 33;  // an M signature: 3 channels x 11 rows
+  SignatureTable table(width);
+  std::vector<std::vector<float>> shapes(5, std::vector<float>(size_t(width)));
+  for (auto& s : shapes)
+    for (float& v : s) v = 10.0f + 4.0f * value(rng);
+  auto add = [&](int e) {
+    std::vector<float> r = shapes[size_t(e) % shapes.size()];
+    for (float& v : r) v = v * (0.6f + 0.02f * float(e % 31)) + 0.2f * value(rng);
+    if (e % 40 == 3 && e > 40) {  // a duplicate: a tie broken by the index
+      std::vector<float> d(table.row(size_t(e - 40)), table.row(size_t(e - 40)) + width);
+      r = d;
+    }
+    table.append(r.data());
+  };
+  for (int e = 0; e < 2300; ++e) add(e);  // 2300 x 33 x 7 values: split over threads below
+  std::vector<std::vector<float>> queries(7, std::vector<float>(size_t(width)));
+  for (size_t q = 0; q < queries.size(); ++q)
+    for (int i = 0; i < width; ++i) queries[q][size_t(i)] = table.row(q * 101)[i] * 1.3f + 0.1f * value(rng);
+  std::vector<const float*> qs;
+  for (auto& q : queries) qs.push_back(q.data());
+  for (size_t threads : {size_t(1), size_t(2)}) {
+    for (size_t first : {size_t(0), size_t(5), size_t(2299), size_t(4000)}) {
+      std::vector<std::vector<SignatureTable::Neighbour>> got(qs.size());
+      table.nearest_many(qs.data(), qs.size(), 32, first, got.data(), threads);
+      for (size_t q = 0; q < qs.size(); ++q) {
+        std::vector<float> d(table.size());
+        table.scaled_distances(qs[q], 0, table.size(), d.data());
+        std::vector<SignatureTable::Neighbour> want;
+        for (size_t e = first; e < table.size(); ++e) want.push_back({d[e], uint32_t(e)});
+        std::sort(want.begin(), want.end());
+        if (want.size() > 32) want.resize(32);
+        REQUIRE(got[q].size() == want.size());
+        for (size_t i = 0; i < want.size(); ++i) {
+          CHECK(got[q][i].e == want[i].e);
+          CHECK(same_bits(got[q][i].d, want[i].d));
+        }
+      }
+    }
+  }
+  // The k nearest of the first 2300 entries, extended by 300 appended since, are nearest()'s.
+  std::vector<std::vector<SignatureTable::Neighbour>> known(qs.size());
+  table.nearest_many(qs.data(), qs.size(), 32, 0, known.data());
+  for (int e = 2300; e < 2600; ++e) add(e);
+  for (size_t q = 0; q < qs.size(); ++q) {
+    table.extend(qs[q], 32, 2300, known[q]);
+    std::vector<uint32_t> want;
+    table.nearest(qs[q], 32, want);
+    std::vector<uint32_t> got;
+    for (const auto& n : known[q]) got.push_back(n.e);
+    CHECK(got == want);
+  }
+}

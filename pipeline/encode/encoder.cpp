@@ -137,6 +137,13 @@ struct Encoder::Ctx {
   std::vector<uint32_t> order;
   std::vector<uint8_t> tried;
   EncoderStats counts;
+  // Candidate orders of the parts a composition is about to search (prime_orders), by level (0: M,
+  // 1: P3) and the part's first value; each holds the k nearest among the entries below `end`.
+  struct Memo {
+    size_t end = 0;
+    std::vector<SignatureTable::Neighbour> near;
+  };
+  std::unordered_map<const float*, Memo> memo[2];
 };
 
 // The input slice: `planes` planes with channels [first, first + channels), values in units `unit`
@@ -521,6 +528,20 @@ bool Encoder::evaluate_composite(const Query& q, const PlaneRef* planes, int np,
 
 namespace {
 
+// A query over texel planes [first_plane, first_plane + planes) borrowing the parent's statistics.
+template <class Q>
+Q sub_query(const Q& parent, int first_plane, int planes) {
+  Q q;
+  q.planes = planes;
+  q.first = parent.first;
+  q.channels = parent.channels;
+  q.unit = parent.unit;
+  q.views.assign(parent.views.begin() + first_plane * parent.channels,
+                 parent.views.begin() + (first_plane + planes) * parent.channels);
+  q.values = parent.values / size_t(parent.planes) * size_t(planes);
+  return q;
+}
+
 // Candidate order: the `k` best by proxy first, then the others in index order; with a limit, only
 // the `limit` best by proxy (an approximate search, see docs/similarity.md).
 template <class Fill>
@@ -584,31 +605,71 @@ static void run_search(const std::vector<uint32_t>& order, bool pruning, double 
   if (best_index >= 0 && best_score < threshold_score) best_index = -1;
 }
 
-void Encoder::order_composite(const Query& q, int level, Ctx& ctx) const {
-  ctx.order.clear();
-  const uint32_t n = uint32_t(level == 4 ? books_.p4_index.rows() : level == 3 ? books_.p3_index.rows() : books_.m.rows());
-  if (n == 0) return;
-  // Query signature: as the candidates' (level 4/3: per plane channel means; M: per channel row means).
-  std::vector<float> qsig;
+// A query's proxy signature, as its candidates' (level 4/3: per plane channel means; M: per
+// channel row means), offset-removed.
+void Encoder::proxy_signature(const Query& q, int level, std::vector<float>& out) const {
+  out.clear();
   const int na = grid_.n_alpha, nb = grid_.n_beta;
   if (level == 2) {
     for (int c = 0; c < 3; ++c)
-      for (int a = 0; a < na; ++a)
-        qsig.push_back(float(q.at(0, c).row_sum(a, nb) / nb) - channel_offset(dyn_, c));
+      for (int a = 0; a < na; ++a) out.push_back(float(q.at(0, c).row_sum(a, nb) / nb) - channel_offset(dyn_, c));
   } else {
     for (int p = 0; p < q.planes; ++p)
-      for (int c = 0; c < 3; ++c) qsig.push_back(float(q.at(p, c).sum / g2_.size()) - channel_offset(dyn_, c));
+      for (int c = 0; c < 3; ++c) out.push_back(float(q.at(p, c).sum / g2_.size()) - channel_offset(dyn_, c));
   }
-  const SignatureTable& sig = level == 4 ? p4_sig_ : level == 3 ? p3_sig_ : m_sig_;
-  // As order_candidates: the k nearest by proxy, then (without a limit) the others in index order.
+}
+
+const SignatureTable& Encoder::signatures(int level) const { return level == 4 ? p4_sig_ : level == 3 ? p3_sig_ : m_sig_; }
+
+// How many candidates a search of a level scores by proxy order (the rest, without a limit, in
+// index order); 0: all of them in index order.
+size_t Encoder::proxy_k(int level) const {
   const int limit = settings_.candidate_limit;
   const int k = limit > 0 ? limit : settings_.pruning ? settings_.proxy_candidates : 0;
-  if (k <= 0 || n <= uint32_t(k)) {
+  return k <= 0 || signatures(level).size() <= size_t(k) ? 0 : size_t(k);
+}
+
+void Encoder::prime_orders(const Query& q, int level, int parts, int part_planes, Ctx& ctx) const {
+  const size_t k = proxy_k(level);
+  if (k == 0) return;
+  std::vector<std::vector<float>> sig(static_cast<size_t>(parts));
+  std::vector<const float*> qs;
+  for (int p = 0; p < parts; ++p) {
+    proxy_signature(sub_query(q, p * part_planes, part_planes), level, sig[size_t(p)]);
+    qs.push_back(sig[size_t(p)].data());
+  }
+  std::vector<std::vector<SignatureTable::Neighbour>> near(static_cast<size_t>(parts));
+  signatures(level).nearest_many(qs.data(), qs.size(), k, 0, near.data(), threads_);
+  for (int p = 0; p < parts; ++p)
+    ctx.memo[level - 2][q.views[size_t(p * part_planes * q.channels)].v] = {signatures(level).size(), std::move(near[size_t(p)])};
+}
+
+void Encoder::order_composite(const Query& q, int level, Ctx& ctx) const {
+  ctx.order.clear();
+  const SignatureTable& sig = signatures(level);
+  const uint32_t n = uint32_t(sig.size());
+  if (n == 0) return;
+  const size_t k = proxy_k(level);
+  if (k == 0) {
     for (uint32_t e = 0; e < n; ++e) ctx.order.push_back(e);
     return;
   }
-  sig.nearest(qsig.data(), size_t(k), ctx.order, threads_);
-  if (limit > 0) return;
+  std::vector<float> qsig;
+  proxy_signature(q, level, qsig);
+  // The k nearest by proxy: from the composition's one pass over the table plus the entries added
+  // since, or a scan of its own.
+  Ctx::Memo* memo = nullptr;
+  if (level < 4)
+    if (auto it = ctx.memo[level - 2].find(q.views[0].v); it != ctx.memo[level - 2].end()) memo = &it->second;
+  if (memo) {
+    sig.extend(qsig.data(), k, memo->end, memo->near);
+    memo->end = n;
+    for (const auto& c : memo->near) ctx.order.push_back(c.e);
+  } else {
+    sig.nearest(qsig.data(), k, ctx.order, threads_);
+  }
+  if (settings_.candidate_limit > 0) return;
+  // Without a limit, the others in index order.
   ctx.tried.assign(n, 0);
   for (uint32_t e : ctx.order) ctx.tried[e] = 1;
   for (uint32_t e = 0; e < n; ++e)
@@ -879,24 +940,6 @@ Encoder::Match Encoder::search_i1(const float* row, float unit, double threshold
 // ---------------------------------------------------------------------------------------------
 // Encoding, top-down with bottom-up insertion.
 
-namespace {
-
-// A query over texel planes [first_plane, first_plane + planes) borrowing the parent's statistics.
-template <class Q>
-Q sub_query(const Q& parent, int first_plane, int planes) {
-  Q q;
-  q.planes = planes;
-  q.first = parent.first;
-  q.channels = parent.channels;
-  q.unit = parent.unit;
-  q.views.assign(parent.views.begin() + first_plane * parent.channels,
-                 parent.views.begin() + (first_plane + planes) * parent.channels);
-  q.values = parent.values / size_t(parent.planes) * size_t(planes);
-  return q;
-}
-
-}  // namespace
-
 P6Entry Encoder::encode_growing(const float* texel) {
   sync();
   Ctx ctx;
@@ -1030,6 +1073,7 @@ Encoder::Match Encoder::encode_p4(const float* texel_in, Ctx& ctx) {
   const double bound = bound_for(thresholds_.p4, q.values);
   const Match found = search_composite(q, 4, bound, ctx);
   if (found.index >= 0) return found;
+  prime_orders(q, 3, grid_.n_phi_v, nt, ctx);
   const Composite c = compose(
       q, grid_.n_phi_v, nt, p3_bright_, bound, thresholds_.p4, ctx,
       [&](int p, double cap) {
@@ -1057,6 +1101,7 @@ Encoder::Match Encoder::encode_p3(const Query& q, Ctx& ctx, double cap) {
   const double bound = bound_for(t3, q.values);
   const Match found = search_composite(q, 3, bound, ctx);
   if (found.index >= 0) return found;
+  prime_orders(q, 2, grid_.n_theta_v, 1, ctx);
   const Composite c = compose(
       q, grid_.n_theta_v, 1, m_bright_, bound, t3, ctx,
       [&](int t, double part_cap) { return encode_m(sub_query(q, t, 1), ctx, part_cap); },
@@ -1436,6 +1481,7 @@ bool Encoder::propose_p4(const float* texel_in, P4Proposal* out) const {
   out->p3.assign(size_t(np), 0);
   out->scale.assign(size_t(np), 0.0f);
   double bright = 0;
+  prime_orders(q, 3, np, nt, ctx);
   for (int p = 0; p < np; ++p) {
     Query sub = sub_query(q, p * nt, nt);
     sub.order_planes(n);

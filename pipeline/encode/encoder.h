@@ -169,6 +169,12 @@ class Encoder {
   Match search_composite(const Query& q, int level, double bound, Ctx& ctx) const;
   // search_composite in two steps: the candidate order (into ctx.order), then the search.
   void order_composite(const Query& q, int level, Ctx& ctx) const;
+  void proxy_signature(const Query& q, int level, std::vector<float>& out) const;
+  const SignatureTable& signatures(int level) const;
+  size_t proxy_k(int level) const;
+  // The candidate orders of the `parts` sub-queries (of part_planes planes each) of q that a
+  // composition will search at `level`, found in one pass over the level's signatures.
+  void prime_orders(const Query& q, int level, int parts, int part_planes, Ctx& ctx) const;
   Match search_composite_in(const Query& q, int level, const std::vector<uint32_t>& order, double bound,
                             Ctx& ctx) const;
   void check_frozen() const;

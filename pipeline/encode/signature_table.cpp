@@ -66,29 +66,89 @@ void SignatureTable::scaled_distances(const float* q, size_t first, size_t last,
   rows_.distances(q, first, last, out);
 }
 
-void SignatureTable::nearest(const float* q, size_t k, std::vector<uint32_t>& out, size_t threads) const {
-  const size_t n = size();
-  k = std::min(k, n);
-  out.resize(n);
-  if (k == 0) {
-    out.clear();
-    return;
+void SignatureTable::Blocks::select(const float* const* qs, const double* qq, size_t nq, size_t k, size_t first,
+                                   size_t last, std::vector<Neighbour>* heaps) const {
+  last = std::min(last, n);
+  if (first >= last || k == 0) return;
+  std::vector<double> qy(nq * kLanes);
+  for (size_t b = first / kLanes; b * kLanes < last; ++b) {
+    const float* block = v.data() + b * width * kLanes;
+    std::fill(qy.begin(), qy.end(), 0.0);
+    // Each entry's sum in value order, as distances() takes it: the same bits.
+    for (size_t i = 0; i < width; ++i) {
+      const float* y = block + i * kLanes;
+      double yd[kLanes];
+      for (size_t j = 0; j < kLanes; ++j) yd[j] = y[j];
+      for (size_t q = 0; q < nq; ++q) {
+        const double qi = qs[q][i];
+        double* acc = qy.data() + q * kLanes;
+        for (size_t j = 0; j < kLanes; ++j) acc[j] += qi * yd[j];
+      }
+    }
+    for (size_t q = 0; q < nq; ++q) {
+      std::vector<Neighbour>& heap = heaps[q];
+      for (size_t j = 0; j < kLanes; ++j) {
+        const size_t e = b * kLanes + j;
+        if (e < first || e >= last) continue;
+        const Neighbour c{float(distance_from(qq[q], qy[q * kLanes + j], yy[e])), uint32_t(e)};
+        if (heap.size() < k) {
+          heap.push_back(c);
+          std::push_heap(heap.begin(), heap.end());
+        } else if (c < heap.front()) {
+          std::pop_heap(heap.begin(), heap.end());
+          heap.back() = c;
+          std::push_heap(heap.begin(), heap.end());
+        }
+      }
+    }
   }
-  std::vector<float> d(n);
+}
+
+void SignatureTable::nearest_many(const float* const* qs, size_t nq, size_t k, size_t first, std::vector<Neighbour>* out,
+                                  size_t threads) const {
+  const size_t n = size();
+  std::vector<double> qq(nq);
+  for (size_t q = 0; q < nq; ++q) {
+    qq[q] = sum_of_squares(qs[q], width());
+    out[q].clear();
+  }
+  if (first >= n || k == 0) return;
   // A large level is split over the threads (the growing phases search on one thread otherwise);
-  // each entry's distance is the same on any thread.
-  const size_t grain = 64 * kLanes;
-  if (threads != 1 && n * width() >= 64 * 1024)
-    parallel_for(0, (n + grain - 1) / grain, [&](size_t c) {
-      rows_.distances(q, c * grain, std::min(n, (c + 1) * grain), d.data() + c * grain);
+  // each part keeps its own k nearest, and the k nearest of their union are the same for any split.
+  const size_t grain = 64 * kLanes, from = first / kLanes * kLanes;
+  const size_t parts = threads != 1 && (n - first) * width() * nq >= 64 * 1024 ? (n - from + grain - 1) / grain : 1;
+  if (parts == 1) {
+    rows_.select(qs, qq.data(), nq, k, first, n, out);
+  } else {
+    std::vector<std::vector<Neighbour>> heaps(parts * nq);
+    parallel_for(0, parts, [&](size_t c) {
+      rows_.select(qs, qq.data(), nq, k, std::max(first, from + c * grain), std::min(n, from + (c + 1) * grain),
+                   heaps.data() + c * nq);
     }, ParallelOptions{threads, 1});
-  else
-    rows_.distances(q, 0, n, d.data());
-  std::iota(out.begin(), out.end(), 0u);
-  auto closer = [&](uint32_t a, uint32_t b) { return d[a] < d[b] || (d[a] == d[b] && a < b); };
-  std::nth_element(out.begin(), out.begin() + ptrdiff_t(k - 1), out.end(), closer);
-  std::sort(out.begin(), out.begin() + ptrdiff_t(k), closer);
-  out.resize(k);
+    for (size_t c = 0; c < parts; ++c)
+      for (size_t q = 0; q < nq; ++q) out[q].insert(out[q].end(), heaps[c * nq + q].begin(), heaps[c * nq + q].end());
+  }
+  for (size_t q = 0; q < nq; ++q) {
+    std::sort(out[q].begin(), out[q].end());
+    if (out[q].size() > k) out[q].resize(k);
+  }
+}
+
+void SignatureTable::extend(const float* q, size_t k, size_t end, std::vector<Neighbour>& known) const {
+  const size_t n = size();
+  if (end >= n) return;
+  std::vector<float> d(n - end);
+  rows_.distances(q, end, n, d.data());
+  for (size_t e = end; e < n; ++e) known.push_back({d[e - end], uint32_t(e)});
+  std::sort(known.begin(), known.end());
+  if (known.size() > k) known.resize(k);
+}
+
+void SignatureTable::nearest(const float* q, size_t k, std::vector<uint32_t>& out, size_t threads) const {
+  std::vector<Neighbour> near;
+  nearest_many(&q, 1, k, 0, &near, threads);
+  out.resize(near.size());
+  for (size_t i = 0; i < near.size(); ++i) out[i] = near[i].e;
 }
 
 }  // namespace btfvq

@@ -33,6 +33,21 @@ class SignatureTable {
   // up to `threads` threads (ParallelOptions::threads), the result the same for any number.
   void nearest(const float* q, size_t k, std::vector<uint32_t>& out, size_t threads = 1) const;
 
+  // An entry and its scaled distance to a query; ordered by (distance, index).
+  struct Neighbour {
+    float d;
+    uint32_t e;
+    bool operator<(const Neighbour& o) const { return d < o.d || (d == o.d && e < o.e); }
+  };
+  // For each of the nq queries, the min(k, size() - first) entries of [first, size()) nearest to
+  // it, nearest first: one pass over the table for all of them (a composition searches its 7 or 16
+  // parts against the same level, and the scan is bound by reading the table, not by arithmetic).
+  void nearest_many(const float* const* qs, size_t nq, size_t k, size_t first, std::vector<Neighbour>* out,
+                    size_t threads = 1) const;
+  // `known` holds the k nearest among the entries below `end`: made the k nearest among all entries
+  // by scoring only those appended since (the result nearest() gives, since the order is total).
+  void extend(const float* q, size_t k, size_t end, std::vector<Neighbour>& known) const;
+
  private:
   struct Blocks {  // n entries of `width` values, kLanes per block, with their sums of squares
     size_t width = 0, n = 0;
@@ -40,6 +55,9 @@ class SignatureTable {
     std::vector<double> yy;  // per entry
     void append(const float* sig);
     void distances(const float* q, size_t first, size_t last, float* out) const;
+    // The k nearest of [first, last) to each query, unsorted, into heaps[q] (max-heaps by Neighbour).
+    void select(const float* const* qs, const double* qq, size_t nq, size_t k, size_t first, size_t last,
+                std::vector<Neighbour>* heaps) const;
   };
   std::vector<float> values_;  // row-major copy
   Blocks rows_;
