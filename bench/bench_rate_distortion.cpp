@@ -34,6 +34,7 @@
 #include "pipeline/encode/quality.h"
 #include "pipeline/io/sample_io.h"
 #include "pipeline/format/database.h"
+#include "pipeline/metrics/btf_cielab.h"
 #include "pipeline/metrics/metrics.h"
 #include "pipeline/decode/reconstruct.h"
 #include "pipeline/io/synthetic.h"
@@ -54,7 +55,8 @@ const std::vector<Option> kRdOptions{
     {"pca", "a,b,..", "per-view PCA components (1,2,5; --quick 1,2)"},
     {"grouped", "a,b,..", "grouped PCA components (1,2,8; --quick 1,2)"},
     {"lab", "a,b,..", "CIELab PCA components (1,4,16,64; --quick 1,2,4,8)"},
-    {"vq", "a,b,..", "texel VQ code-book entries (32,128; --quick 4)"}};
+    {"vq", "a,b,..", "texel VQ code-book entries (32,128; --quick 4)"},
+    {"btf-cielab", "on|off", "the BTF-CIELab mean column (docs/metrics.md, default viewing condition; on)"}};
 
 struct RdArgs {
   std::vector<std::string> presets{"tile", "leather", "wood", "corduroy"};
@@ -64,6 +66,7 @@ struct RdArgs {
   std::vector<double> qualities{20, 35, 50, 65, 80};
   std::vector<double> phase2;
   std::vector<int> pca{1, 2, 5}, grouped{1, 2, 8}, lab{1, 4, 16, 64}, vq{32, 128};
+  bool btf_cielab = true;
 };
 
 std::vector<std::string> split(const std::string& s, char sep) {
@@ -148,6 +151,10 @@ RdArgs rd_args(const btfvq::Args& given, bool quick) {
   if (auto v = given.get("grouped")) r.grouped = ints(*v);
   if (auto v = given.get("lab")) r.lab = ints(*v);
   if (auto v = given.get("vq")) r.vq = ints(*v);
+  if (auto v = given.get("btf-cielab")) {
+    if (*v != "on" && *v != "off") usage("--btf-cielab wants on or off, got " + *v);
+    r.btf_cielab = *v == "on";
+  }
   return r;
 }
 
@@ -156,7 +163,15 @@ struct Point {
   double ratio = 0, seconds = 0;
   uint64_t bytes = 0;
   EvaluationReport e;
+  std::optional<double> btf_cielab;  // its mean, when the column is on
 };
+
+// Every method's decoded sample is scored by the same calls: the metrics of eval, and BTF-CIELab at
+// its default viewing condition when asked (a few minutes per point at 256 x 256).
+void score(Point& p, const MeasuredSample& sample, const MeasuredSample& decoded, bool with_btf_cielab) {
+  p.e = evaluate(sample, decoded);
+  if (with_btf_cielab) p.btf_cielab = btf_cielab(sample, decoded).mean;
+}
 
 // The pipeline config of quality q and, if phase2 >= 0, that schedule.phase2_fraction.
 ParameterDictionary btfvq_config(double quality, double phase2) {
@@ -165,7 +180,8 @@ ParameterDictionary btfvq_config(double quality, double phase2) {
   return pipeline_config(with_quality(quality, overrides), "rate-distortion bench");
 }
 
-Point run_btfvq(const MeasuredSample& sample, double quality, double phase2, const std::filesystem::path& scratch) {
+Point run_btfvq(const MeasuredSample& sample, double quality, double phase2, bool with_btf_cielab,
+                const std::filesystem::path& scratch) {
   bench::Stopwatch sw;
   Database db;
   CompressOptions options;
@@ -182,18 +198,18 @@ Point run_btfvq(const MeasuredSample& sample, double quality, double phase2, con
   else std::snprintf(s, sizeof s, "Q %.0f", quality);
   p.setting = s;
   p.bytes = std::filesystem::file_size(path);
-  p.e = evaluate(sample, reconstruct_sample(read_database(path.string()), "m", sample));
+  score(p, sample, reconstruct_sample(read_database(path.string()), "m", sample), with_btf_cielab);
   std::filesystem::remove(path);
   return p;
 }
 
-Point from_baseline(const MeasuredSample& sample, BaselinePoint& b) {
+Point from_baseline(const MeasuredSample& sample, BaselinePoint& b, bool with_btf_cielab) {
   Point p;
   p.method = b.method;
   p.setting = b.setting;
   p.bytes = b.bytes;
   p.seconds = b.seconds;
-  p.e = evaluate(sample, b.decoded);
+  score(p, sample, b.decoded, with_btf_cielab);
   b.decoded = MeasuredSample();
   return p;
 }
@@ -408,7 +424,9 @@ void write_rd_section(const bench::Args& args, bool quick) {
         "full-matrix PCA of the L, a, b channels over all 6561 pairs, k components in total picked greedily by sigma; "
         "no perceptual filter); **one-level VQ** (btfvq's resampled texels, one k-means code-book of N whole "
         "texels). Encode time of a baseline = its decomposition (shared by its sizes) plus the size's quantization. "
-        "MSSIM on BT.601 luma; CIEDE2000 mean over every texel of every image. Every table comes from one run of "
+        "MSSIM on BT.601 luma; CIEDE2000 mean over every texel of every image; BTF-CIELab mean (docs/metrics.md, "
+        "pipeline/metrics/btf_cielab.h) of the decoded sample against the sample at the default viewing condition "
+        "(14.14 texels per degree, 100 degrees per second), in tables measured since it was added. Every table comes from one run of "
         "this bench on that sample (its command, commit and date are under its heading); the samples are kept in "
         "bench/results/rd/ so that the 256 x 256 ones (about an hour each here) can be measured by runs of their own.\n\n";
   if (quick) md << "*--quick: 32 x 32 samples and a 16 x 16 corner of proposte; every ratio depends on the texel "
@@ -470,13 +488,13 @@ int main(int argc, char** argv) {
     for (double q : rd.qualities) settings.emplace_back(q, -1.0);
     for (double f : rd.phase2) settings.emplace_back(kDefaultQuality, f);
     for (const auto& [s, f] : settings) {
-      points.push_back(run_btfvq(sample, s, f, args.scratch));
+      points.push_back(run_btfvq(sample, s, f, rd.btf_cielab, args.scratch));
       points.back().ratio = raw / double(points.back().bytes);
       std::fprintf(stderr, "  btfvq %s: 1:%.0f MSSIM %.3f (encode %.1f s, %.0f s so far)\n", points.back().setting.c_str(),
                    points.back().ratio, points.back().e.mssim_y, points.back().seconds, clock.seconds());
     }
     auto sink = [&](BaselinePoint& b) {
-      points.push_back(from_baseline(sample, b));
+      points.push_back(from_baseline(sample, b, rd.btf_cielab));
       points.back().ratio = raw / double(points.back().bytes);
       std::fprintf(stderr, "  %s %s: 1:%.0f MSSIM %.3f (encode %.1f s, %.0f s so far)\n", points.back().method.c_str(),
                    points.back().setting.c_str(), points.back().ratio, points.back().e.mssim_y, points.back().seconds,
@@ -488,17 +506,21 @@ int main(int argc, char** argv) {
     baselines::texel_vq(sample, ParameterDictionary::embedded_default("pipeline"), rd.vq, sink);
 
     std::ostringstream md;
-    md << "| method | setting | ratio | bytes | MSSIM (Y) | PSNR dB | CIEDE2000 mean | encode s |\n"
-       << "|---|---|---|---|---|---|---|---|\n";
+    const bool cielab = rd.btf_cielab;
+    md << "| method | setting | ratio | bytes | MSSIM (Y) | PSNR dB | CIEDE2000 mean | " << (cielab ? "BTF-CIELab mean | " : "")
+       << "encode s |\n"
+       << "|---|---|---|---|---|---|---|" << (cielab ? "---|" : "") << "---|\n";
     nlohmann::json rows = nlohmann::json::array();
     for (const auto& p : points) {
-      char row[512];
-      std::snprintf(row, sizeof row, "| %s | %s | 1:%.0f | %llu | %.3f | %.1f | %.2f | %.1f |\n", p.method.c_str(),
+      char row[512], perceptual[32] = "";
+      if (p.btf_cielab) std::snprintf(perceptual, sizeof perceptual, " %.2f |", *p.btf_cielab);
+      std::snprintf(row, sizeof row, "| %s | %s | 1:%.0f | %llu | %.3f | %.1f | %.2f |%s %.1f |\n", p.method.c_str(),
                     p.setting.c_str(), p.ratio, (unsigned long long)p.bytes, p.e.mssim_y, p.e.psnr, p.e.ciede2000_mean,
-                    p.seconds);
+                    perceptual, p.seconds);
       md << row;
       rows.push_back({{"method", p.method}, {"setting", p.setting}, {"ratio", p.ratio}, {"bytes", p.bytes},
                       {"mssim", p.e.mssim_y}, {"psnr", p.e.psnr}, {"ciede2000_mean", p.e.ciede2000_mean}, {"seconds", p.seconds}});
+      if (p.btf_cielab) rows.back()["btf_cielab_mean"] = *p.btf_cielab;
     }
     const Matched m = matched_mssim(points, is_pca);
     const Matched per_view = matched_mssim(points, [](const std::string& method) { return method == "per-view PCA"; });

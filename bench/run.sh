@@ -3,7 +3,7 @@
 # Usage: bash bench/run.sh BIN_DIR [BENCH ARGS...]   (make bench builds a -O3 -march=native release
 # first; `make bench BENCH_ARGS=--quick` runs smaller sizes, and BENCHMARKS.md says so)
 # bench_rate_distortion also reads BTFVQ_RD_ARGS (its own flags: --presets, --size, --big, --proposte,
-# --qualities, --phase2, --pca, --grouped, --lab, --vq; see the top of bench/bench_rate_distortion.cpp), e.g.
+# --qualities, --phase2, --pca, --grouped, --lab, --vq, --btf-cielab; see the top of bench/bench_rate_distortion.cpp), e.g.
 #   BTFVQ_RD_ARGS="--presets tile,wood --big none" make bench
 set -euo pipefail
 bin=${1:-build-release/bin}

@@ -96,9 +96,11 @@ void print_summary(const std::string& out, const DatabaseSummary& s) {
   for (const auto& r : s.added) {
     if (r.json.contains("target")) {
       const auto& t = r.json["target"];
-      std::cout << "  " << r.material << ": target MSSIM " << t["mssim"].get<double>() << ", achieved "
-                << t["achieved"].get<double>() << (t["reached"].get<bool>() ? "" : " (not reached)") << " at quality "
-                << t["quality"].get<double>() << " after " << t["attempts"].size() << " compression(s)\n";
+      const std::string metric = t["metric"];
+      std::cout << "  " << r.material << ": target " << (metric == "mssim" ? "MSSIM " : "BTF-CIELab mean ")
+                << t[metric].get<double>() << ", achieved " << t["achieved"].get<double>()
+                << (t["reached"].get<bool>() ? "" : " (not reached)") << " at quality " << t["quality"].get<double>()
+                << ", ratio 1:" << t["ratio"].get<double>() << ", after " << t["attempts"].size() << " compression(s)\n";
     }
     if (r.json.contains("resumed")) std::cout << "  " << r.material << ": " << r.json["resumed"].get<std::string>() << "\n";
     for (const auto& p : r.json.value("phases", nlohmann::json::array()))
@@ -121,17 +123,24 @@ int run_compress(const Args& a) {
   if (a.positional.empty()) throw InputError("usage: btfvq compress IN... --db OUT.btfdb [--config F]");
   const std::string out = a.require("db");
   if (a.has("name") && a.positional.size() != 1) throw InputError("--name needs exactly one input");
-  if (a.has("quality") && a.has("target-mssim")) throw InputError("--quality and --target-mssim exclude each other");
+  if (int(a.has("quality")) + int(a.has("target-mssim")) + int(a.has("target-btf-cielab")) > 1)
+    throw InputError("--quality, --target-mssim and --target-btf-cielab exclude each other");
   CompressOptions options;
   options.config = config_of(a);  // a misspelled setting fails before any work
-  if (auto t = a.get("target-mssim")) {
+  const auto mssim = a.get("target-mssim"), cielab = a.get("target-btf-cielab");
+  if (mssim || cielab) {
     QualityTarget target;
-    target.mssim = *t == "default" ? kDefaultTargetMssim : parse_number(*t, "--target-mssim", 0.01, 0.999);
+    if (mssim) {
+      target.value = *mssim == "default" ? kDefaultTargetMssim : parse_number(*mssim, "--target-mssim", 0.01, 0.999);
+    } else {
+      target.metric = TargetMetric::BtfCielab;
+      target.value = parse_number(*cielab, "--target-btf-cielab", kMinTargetBtfCielab, kMaxTargetBtfCielab);
+    }
     if (auto file = a.get("config")) target.overrides = ParameterDictionary::load_file(*file).json();
     options.target = target;
   }
   if (auto dir = a.get("resume")) {
-    if (options.target) throw InputError("--resume and --target-mssim exclude each other (a target compresses several times)");
+    if (options.target) throw InputError("--resume and a target exclude each other (a target compresses several times)");
     options.checkpoint_folder = *dir;
   }
   StageBars bars;
@@ -150,11 +159,13 @@ int run_compress(const Args& a) {
   return 0;
 }
 
-CommandRegistrar reg({"compress", "compress IN... --db OUT.btfdb [--quality Q | --target-mssim X] [--config F] [--name N] [--report R.json] [--resume DIR]",
+CommandRegistrar reg({"compress", "compress IN... --db OUT.btfdb [--quality Q | --target-mssim X | --target-btf-cielab X] [--config F] [--name N] [--report R.json] [--resume DIR]",
                       "compress measured samples (zip or directory) into a database; an existing database gains them",
                       {{"db", "OUT.btfdb", "the database to write (an existing one gains the materials)"},
                        {"quality", "Q", "0..100: every threshold by one rule (default 50, the shipped settings)"},
                        {"target-mssim", "X", "search the quality whose MSSIM (Y, whole sample) reaches X, or 'default' (0.90)"},
+                       {"target-btf-cielab", "X",
+                        "search the quality whose BTF-CIELab mean (docs/metrics.md, default viewing condition) is at most X"},
                        {"config", "F", "a configs/pipeline.json fragment; its settings win over --quality"},
                        {"name", "N", "the material's name (one input only; default: from the file name)"},
                        {"report", "R.json", "also write the compress report (counters, seconds) as JSON"},

@@ -8,6 +8,7 @@
 #include "client/cli.h"
 #include "client/http_client.h"
 #include "client/progress_bar.h"
+#include "pipeline/encode/target.h"
 #include <btfvq/error.h>
 #include "pipeline/util/sha256.h"
 
@@ -100,6 +101,9 @@ int run_submit(const Args& args) {
   if (!pipeline.empty()) request["pipeline"] = pipeline;
   if (auto q = args.get("quality")) request["quality"] = parse_number(*q, "--quality", 0, 100);
   if (auto t = args.get("target-mssim")) request["target_mssim"] = parse_number(*t, "--target-mssim", 0.01, 0.999);
+  if (auto t = args.get("target-btf-cielab"))
+    request["target_btf_cielab"] = parse_number(*t, "--target-btf-cielab", kMinTargetBtfCielab, kMaxTargetBtfCielab);
+  if (auto c = args.get("btf-cielab")) request["btf_cielab"] = *c;  // the server checks it
   const json job = client.post_json("/v1/jobs", request);
   std::cout << job.at("id").get<std::string>() << "\n";
   return 0;
@@ -107,7 +111,8 @@ int run_submit(const Args& args) {
 
 CommandRegistrar reg({"submit",
                       "submit --server URL --db NAME (--synthetic PRESET[:SIZE] | --upload PATH | --path SERVER_PATH)... "
-                      "[--name NAME]... [--seed S] [--quality Q | --target-mssim X] [--config overrides.json]",
+                      "[--name NAME]... [--seed S] [--quality Q | --target-mssim X | --target-btf-cielab X] [--btf-cielab default|R,S] "
+                      "[--config overrides.json]",
                       "submit materials to a btfvq server as one job; prints the job id",
                       remote_options({{"db", "NAME", "the database on the server that gains the materials"},
                                       {"synthetic", "PRESET[:SIZE]", "a synthetic material rendered by the server (size 64)"},
@@ -117,6 +122,10 @@ CommandRegistrar reg({"submit",
                                       {"seed", "S", "the seed of the synthetic materials (default 1)"},
                                       {"quality", "Q", "0..100: every threshold by one rule (the job field \"quality\")"},
                                       {"target-mssim", "X", "the MSSIM the job's materials must reach (the job field \"target_mssim\")"},
+                                      {"target-btf-cielab", "X",
+                                       "the BTF-CIELab mean the job's materials must not exceed (the job field \"target_btf_cielab\")"},
+                                      {"btf-cielab", "default|R,S",
+                                       "report each material's BTF-CIELab at that viewing condition (the job field \"btf_cielab\")"},
                                       {"config", "FILE", "pipeline settings (JSON) over configs/pipeline.json"}}),
                       {},
                       run_submit});

@@ -520,8 +520,8 @@ py::dict compress(const py::object& sample_o, const py::object& db_o, const py::
   }
   if (!target_mssim.is_none()) {
     QualityTarget t;
-    t.mssim = target_mssim.cast<double>();
-    if (!(t.mssim >= 0.01 && t.mssim <= 0.999)) bad_input("target_mssim must be in 0.01..0.999");
+    t.value = target_mssim.cast<double>();
+    if (!(t.value >= 0.01 && t.value <= 0.999)) bad_input("target_mssim must be in 0.01..0.999");
     t.overrides = overrides;
     options.target = t;
   }

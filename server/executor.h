@@ -8,10 +8,12 @@
 #include <array>
 #include <cstdint>
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "pipeline/codebook.h"
+#include "pipeline/metrics/btf_cielab.h"
 
 namespace btfvq {
 struct PhaseThreeWork;  // pipeline/encode/tile_parts.h
@@ -35,12 +37,16 @@ struct JobSpec {
   std::string database;
   std::vector<MaterialSpec> materials;
   nlohmann::json pipeline = nlohmann::json::object();  // overrides of configs/pipeline.json
-  double target_mssim = 0;  // > 0: search the quality that reaches it (pipeline/encode/target.h)
+  double target_mssim = 0;       // > 0: search the quality that reaches it (pipeline/encode/target.h)
+  double target_btf_cielab = 0;  // > 0: the same for a BTF-CIELab mean at most this
+  // Set: each added material's report gains "btf_cielab", its BTF-CIELab (pipeline/metrics/btf_cielab.h)
+  // against its sample at this viewing condition, decoded from the file the job publishes.
+  std::optional<ViewingCondition> btf_cielab;
 };
 
 // What a running job reports; the service derives elapsed time and ETA from it.
 struct JobProgress {
-  std::string stage;          // "load", "resample", "phase1", "phase2", "refine", "phase3", "write", ...
+  std::string stage;          // "load", "resample", "phase1", "phase2", "refine", "phase3", "write", "btf_cielab", ...
   int phase = 0;              // 1, 2, 3 during the three-phase schedule; 0 otherwise
   double fraction = 0;        // of the whole job, 0..1
   uint64_t texels_done = 0;   // within the current stage

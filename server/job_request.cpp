@@ -1,10 +1,13 @@
 #include "server/job_request.h"
 
 #include <algorithm>
+#include <iterator>
 #include <regex>
 #include <set>
 
 #include "pipeline/encode/quality.h"
+#include "pipeline/encode/target.h"
+#include "pipeline/metrics/btf_cielab.h"
 #include "pipeline/io/sample_io.h"
 #include <btfvq/error.h>
 #include "server/errors.h"
@@ -80,12 +83,22 @@ const json& require_materials(const json& request) {
 json pipeline_overrides(const json& request) {
   json pipeline = request.value("pipeline", json::object());
   if (!pipeline.is_object()) throw invalid("pipeline", "must be an object");
-  if (request.contains("quality") && request.contains("target_mssim"))
-    throw invalid("quality", "and \"target_mssim\" exclude each other");
+  // One way to choose the settings' level: a quality, or a target to search it for.
+  const std::string knobs[] = {"quality", "target_mssim", "target_btf_cielab"};
+  for (size_t i = 0; i < std::size(knobs); ++i)
+    for (size_t k = i + 1; k < std::size(knobs); ++k)
+      if (request.contains(knobs[i]) && request.contains(knobs[k]))
+        throw invalid(knobs[i], "and \"" + knobs[k] + "\" exclude each other");
   if (request.contains("target_mssim")) {
     const json& t = request["target_mssim"];
     if (!t.is_number() || !(t.get<double>() >= 0.01 && t.get<double>() <= 0.999))
       throw invalid("target_mssim", "must be a number from 0.01 to 0.999");
+  }
+  if (request.contains("target_btf_cielab")) {
+    const json& t = request["target_btf_cielab"];
+    if (!t.is_number() || !(t.get<double>() >= kMinTargetBtfCielab && t.get<double>() <= kMaxTargetBtfCielab))
+      throw invalid("target_btf_cielab", "must be a number from " + json(kMinTargetBtfCielab).dump() + " to " +
+                                             json(kMaxTargetBtfCielab).dump());
   }
   if (request.contains("quality")) {
     const json& q = request["quality"];
@@ -94,6 +107,19 @@ json pipeline_overrides(const json& request) {
   }
   validate_pipeline_overrides(pipeline);
   return pipeline;
+}
+
+// "btf_cielab": "default" or "RESOLUTION,SPEED", read by the parser of `btfvq eval --metric
+// btf-cielab:RESOLUTION,SPEED`. Checked at submit time, read again from the stored request.
+ViewingCondition btf_cielab_condition(const json& v) {
+  if (!v.is_string()) throw invalid("btf_cielab", "must be \"default\" or \"RESOLUTION,SPEED\" (a string)");
+  const std::string text = v.get<std::string>();
+  if (text == "default") return {};
+  try {
+    return parse_viewing_condition(text);
+  } catch (const InputError& e) {
+    throw invalid("btf_cielab", std::string(e.what()) + " (expected \"default\" or \"RESOLUTION,SPEED\")");
+  }
 }
 
 }  // namespace
@@ -111,7 +137,7 @@ JobRequests::JobRequests(Store& store, DataDir data, fs::path input_root, uint64
 
 json JobRequests::validate(const json& request, const std::string& id) const {
   require_object(request, "request body");
-  only_keys(request, "", {"database", "materials", "pipeline", "quality", "target_mssim"});
+  only_keys(request, "", {"database", "materials", "pipeline", "quality", "target_mssim", "target_btf_cielab", "btf_cielab"});
   const std::string database = require_string(request, "database", "");
   if (!valid_name(database))
     throw invalid("database", "'" + database + "' is not a valid name (1-64 of [A-Za-z0-9._-], starting alphanumeric)");
@@ -133,7 +159,12 @@ json JobRequests::validate(const json& request, const std::string& id) const {
   }
   json out = {{"id", id}, {"database", database}, {"materials", normalized}, {"pipeline", pipeline_overrides(request)}};
   if (request.contains("quality")) out["quality"] = request["quality"];
-  if (request.contains("target_mssim")) out["target_mssim"] = request["target_mssim"];
+  for (const char* key : {"target_mssim", "target_btf_cielab"})
+    if (request.contains(key)) out[key] = request[key];
+  if (request.contains("btf_cielab")) {
+    btf_cielab_condition(request["btf_cielab"]);
+    out["btf_cielab"] = request["btf_cielab"];
+  }
   return out;
 }
 
@@ -217,6 +248,8 @@ JobSpec JobRequests::spec(const JobRecord& job) const {
   spec.database = job.database;
   spec.pipeline = job.spec.value("pipeline", json::object());
   spec.target_mssim = job.spec.value("target_mssim", 0.0);
+  spec.target_btf_cielab = job.spec.value("target_btf_cielab", 0.0);
+  if (job.spec.contains("btf_cielab")) spec.btf_cielab = btf_cielab_condition(job.spec["btf_cielab"]);
   for (const auto& m : job.spec["materials"]) {
     MaterialSpec ms;
     ms.name = m["name"];

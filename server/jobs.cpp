@@ -158,7 +158,19 @@ json JobQueue::job(const std::string& id) {
   std::lock_guard lock(mutex_);
   auto record = store_.job(id);
   if (!record) throw NotFoundError("no job '" + id + "'");
-  return job_json(*record);
+  json j = job_json(*record);
+  // A succeeded job's results: the reports of the materials it added, as the catalogue keeps them
+  // with the version it published (here only, not in the list of jobs: one read of the versions).
+  json results = nullptr;
+  if (record->state == JobState::succeeded)
+    for (const VersionRecord& v : store_.versions(record->database))
+      if (v.version == record->version) {
+        results = json::array();
+        for (const auto& m : v.materials)
+          if (m.value("job", "") == id) results.push_back({{"name", m["name"]}, {"report", m.value("report", json::object())}});
+      }
+  j["results"] = results;
+  return j;
 }
 
 json JobQueue::jobs() {

@@ -253,6 +253,14 @@ TEST_CASE("job validation names the field and changes nothing") {
        "target_mssim"},
       {{{"database", "d"}, {"materials", json::array({{{"source", {{"path", "ok/sample.zip"}}}}})}, {"quality", 60}, {"target_mssim", 0.9}},
        "exclude"},
+      {{{"database", "d"}, {"materials", json::array({{{"source", {{"path", "ok/sample.zip"}}}}})}, {"target_btf_cielab", 0}},
+       "target_btf_cielab"},
+      {{{"database", "d"}, {"materials", json::array({{{"source", {{"path", "ok/sample.zip"}}}}})}, {"target_btf_cielab", 1}, {"target_mssim", 0.9}},
+       "exclude"},
+      {{{"database", "d"}, {"materials", json::array({{{"source", {{"path", "ok/sample.zip"}}}}})}, {"btf_cielab", "50;100"}},
+       "btf_cielab"},
+      {{{"database", "d"}, {"materials", json::array({{{"source", {{"path", "ok/sample.zip"}}}}})}, {"btf_cielab", true}},
+       "btf_cielab"},
   };
   for (const auto& c : input_errors) {
     CAPTURE(c.body.dump());
@@ -293,6 +301,12 @@ TEST_CASE("job validation names the field and changes nothing") {
   json aimed = with_source({{"path", "ok/sample.zip"}});
   aimed["target_mssim"] = 0.85;
   CHECK(service.submit(aimed)["request"]["target_mssim"] == 0.85);
+  json perceptual = with_source({{"path", "ok/sample.zip"}});
+  perceptual["target_btf_cielab"] = 2.5;
+  perceptual["btf_cielab"] = "50,";
+  const json p = service.submit(perceptual)["request"];
+  CHECK(p["target_btf_cielab"] == 2.5);
+  CHECK(p["btf_cielab"] == "50,");
 }
 
 TEST_CASE("without an input root, server-side paths are refused") {

@@ -1,6 +1,7 @@
 #include <doctest/doctest.h>
 
 #include <algorithm>
+#include <cmath>
 
 #include <btfvq/error.h>
 #include "pipeline/decode/reconstruct.h"
@@ -8,6 +9,7 @@
 #include "pipeline/encode/target.h"
 #include "pipeline/format/database.h"
 #include "pipeline/io/synthetic.h"
+#include "pipeline/metrics/btf_cielab.h"
 #include "pipeline/metrics/metrics.h"
 
 using namespace btfvq;
@@ -35,28 +37,28 @@ TEST_CASE("target MSSIM: the database keeps an attempt that reaches it, and says
 
   // A target above what the default quality gives: the search must go up.
   QualityTarget t;
-  t.mssim = std::min(0.99, at_default + 0.02);
+  t.value = std::min(0.99, at_default + 0.02);
   CompressOptions o;
   o.target = t;
   Database db;
   const CompressReport r = compress_to_target(db, sample, "m", t, o);
   const auto& j = r.json["target"];
   REQUIRE(j["reached"].get<bool>());
-  CHECK(j["mssim"] == t.mssim);
-  CHECK(j["achieved"].get<double>() >= t.mssim);
+  CHECK(j["mssim"] == t.value);
+  CHECK(j["achieved"].get<double>() >= t.value);
   CHECK(j["quality"].get<double>() > 50);
   CHECK(j["attempts"].size() <= size_t(t.max_attempts));
   // What it reports is what the database decodes to, measured here on its own.
   CHECK(independent_mssim(db, sample) == doctest::Approx(j["achieved"].get<double>()).epsilon(1e-9));
   // Of the attempts that reached the target, the kept one has the fewest bytes.
   for (const auto& a : j["attempts"])
-    if (a["mssim"].get<double>() >= t.mssim) CHECK(a["bytes"].get<uint64_t>() >= serialize_database(db).size());
+    if (a["mssim"].get<double>() >= t.value) CHECK(a["bytes"].get<uint64_t>() >= serialize_database(db).size());
 }
 
 TEST_CASE("target MSSIM out of reach: the closest attempt, marked not reached; a bad target changes nothing") {
   const MeasuredSample sample = leather16();
   QualityTarget t;
-  t.mssim = 0.999;
+  t.value = 0.999;
   t.max_attempts = 2;
   Database db;
   const CompressReport r = compress_to_target(db, sample, "m", t, {});
@@ -70,7 +72,91 @@ TEST_CASE("target MSSIM out of reach: the closest attempt, marked not reached; a
   Database untouched;
   for (double bad : {0.0, 1.0, -0.5}) {
     QualityTarget b;
-    b.mssim = bad;
+    b.value = bad;
+    CHECK_THROWS_AS(compress_to_target(untouched, sample, "m", b, {}), InputError);
+  }
+  CHECK(untouched.materials.empty());
+}
+
+namespace {
+double independent_btf_cielab(const Database& db, const MeasuredSample& sample) {
+  return btf_cielab(sample, reconstruct_sample(db, "m", sample)).mean;
+}
+
+// What a BTF-CIELab target's report must say: the value under its name, the kept attempt's value
+// measured here on its own, reached when at most the target, and within the tolerance unless the
+// attempts ran out.
+void check_btf_cielab_report(const nlohmann::json& j, const QualityTarget& t, const Database& db,
+                             const MeasuredSample& sample) {
+  CHECK(j["metric"] == "btf_cielab");
+  CHECK(j["btf_cielab"] == t.value);
+  CHECK(j["resolution"] == t.condition.resolution);
+  CHECK(j["speed"] == t.condition.speed);
+  const double achieved = j["achieved"].get<double>();
+  CHECK(independent_btf_cielab(db, sample) == doctest::Approx(achieved).epsilon(1e-9));
+  CHECK(j["bytes"] == serialize_database(db).size());
+  CHECK(j["ratio"].get<double>() == doctest::Approx(double(raw_bytes(db)) / double(serialize_database(db).size())));
+  if (j["reached"].get<bool>()) {
+    CHECK(achieved <= t.value);
+    if (j["attempts"].size() < size_t(t.max_attempts)) CHECK(t.value - achieved <= kBtfCielabTolerance);
+    for (const auto& a : j["attempts"])  // of the attempts that reached it, the kept one has the fewest bytes
+      if (a["btf_cielab"].get<double>() <= t.value) CHECK(a["bytes"].get<uint64_t>() >= j["bytes"].get<uint64_t>());
+  } else {
+    CHECK(j["attempts"].size() == size_t(t.max_attempts));
+    for (const auto& a : j["attempts"]) CHECK(a["btf_cielab"].get<double>() > t.value);
+  }
+}
+}  // namespace
+
+TEST_CASE("target BTF-CIELab: lower is better, so a tighter target than the default quality's searches upwards") {
+  const MeasuredSample sample = leather16();
+  Database plain;
+  compress_material(plain, sample, "m", {});
+  quantize_new_rows(plain);
+  const double at_default = independent_btf_cielab(plain, sample);
+  REQUIRE(at_default > 0.5);
+
+  QualityTarget t;
+  t.metric = TargetMetric::BtfCielab;
+  t.value = at_default - 0.3;
+  t.max_attempts = 3;
+  Database db;
+  const CompressReport r = compress_to_target(db, sample, "m", t, {});
+  const auto& j = r.json["target"];
+  check_btf_cielab_report(j, t, db, sample);
+  CHECK(j["reached"].get<bool>());  // Q 50 gives at_default; the quality rises until the value falls
+  CHECK(j["quality"].get<double>() > 50);
+  const auto& attempts = j["attempts"];
+  CHECK(attempts[0]["quality"] == 50.0);
+  CHECK(attempts[0]["btf_cielab"].get<double>() == doctest::Approx(at_default).epsilon(1e-9));
+  for (size_t i = 1; i < attempts.size(); ++i) CHECK(attempts[i]["quality"].get<double>() > 50);
+}
+
+TEST_CASE("target BTF-CIELab: a looser target than the default quality's searches downwards, for fewer bytes") {
+  const MeasuredSample sample = leather16();
+  Database plain;
+  compress_material(plain, sample, "m", {});
+  quantize_new_rows(plain);
+  const double at_default = independent_btf_cielab(plain, sample);
+
+  QualityTarget t;
+  t.metric = TargetMetric::BtfCielab;
+  t.value = at_default + 0.5;
+  t.max_attempts = 3;
+  Database db;
+  const CompressReport r = compress_to_target(db, sample, "m", t, {});
+  const auto& j = r.json["target"];
+  check_btf_cielab_report(j, t, db, sample);
+  REQUIRE(j["reached"].get<bool>());  // Q 50 already does
+  REQUIRE(j["attempts"].size() >= 2);  // 0.5 past the target is more than the tolerance
+  CHECK(j["attempts"][1]["quality"].get<double>() < 50);
+  CHECK(j["bytes"].get<uint64_t>() <= serialize_database(plain).size());
+
+  Database untouched;
+  for (double bad : {0.0, -1.0, std::nan("")}) {
+    QualityTarget b;
+    b.metric = TargetMetric::BtfCielab;
+    b.value = bad;
     CHECK_THROWS_AS(compress_to_target(untouched, sample, "m", b, {}), InputError);
   }
   CHECK(untouched.materials.empty());

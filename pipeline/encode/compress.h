@@ -18,6 +18,7 @@
 #include "pipeline/util/config.h"
 #include "pipeline/encode/schedule.h"
 #include "pipeline/encode/tile_parts.h"
+#include "pipeline/metrics/btf_cielab.h"
 
 namespace btfvq {
 
@@ -33,12 +34,19 @@ struct CompressProgress {
   int64_t resumed_tile = -1;  // this material continues from a checkpoint after this many phase-3 tiles
 };
 
-// Target mode (pipeline/encode/target.h): the quality knob searched until the MSSIM is reached.
+// Target mode (pipeline/encode/target.h): the quality knob searched until a metric of the whole
+// sample reaches a value. MSSIM rises with quality, the BTF-CIELab mean falls: the search knows the
+// direction, so a target is "at least" for the one and "at most" for the other.
+enum class TargetMetric { Mssim, BtfCielab };
 struct QualityTarget {
-  double mssim = 0;          // in (0, 1)
-  nlohmann::json overrides;  // the user's settings, over the knob (with_quality)
-  int max_attempts = 4;      // whole compressions at most
-  double tolerance = 0.005;  // stop once the target is reached by at most this much
+  TargetMetric metric = TargetMetric::Mssim;
+  double value = 0;              // MSSIM in (0, 1), or a BTF-CIELab mean > 0 (CIEDE2000 units)
+  ViewingCondition condition;    // of the BTF-CIELab target
+  nlohmann::json overrides;      // the user's settings, over the knob (with_quality)
+  int max_attempts = 4;          // whole compressions at most
+  // Stop once the target is passed by at most this much, in the metric's units; unset: the metric's
+  // own (target.h).
+  std::optional<double> tolerance;
 };
 
 struct CompressOptions {

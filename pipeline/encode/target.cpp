@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <optional>
 #include <string>
 
@@ -9,47 +10,77 @@
 #include "pipeline/decode/reconstruct.h"
 #include "pipeline/encode/quality.h"
 #include "pipeline/format/database.h"
+#include "pipeline/metrics/btf_cielab.h"
 #include "pipeline/metrics/metrics.h"
 
 namespace btfvq {
 
 namespace {
 
+// What the search needs of a metric: how to score an attempt, which way is better, how the metric
+// moves per unit of quality before two attempts measure it, and when it is close enough. The loop
+// below works on `direction * value` ("goodness", higher is better) so that it is written once.
+struct MetricSpec {
+  const char* name;
+  double direction;  // +1: higher is better (MSSIM); -1: lower is better (BTF-CIELab)
+  double slope;      // |change of the value| per quality unit, a first guess
+  double tolerance;
+  std::function<double(const MeasuredSample& reference, const MeasuredSample& decoded)> score;
+};
+
+MetricSpec metric_of(const QualityTarget& t) {
+  if (t.metric == TargetMetric::Mssim) {
+    if (!(t.value > 0 && t.value < 1)) throw InputError("target MSSIM must lie in (0, 1), got " + std::to_string(t.value));
+    // About what the presets and proposte show (docs/encoder.md "Target").
+    return {"mssim", 1, 0.002, t.tolerance.value_or(kMssimTolerance),
+            [](const MeasuredSample& r, const MeasuredSample& d) { return evaluate(r, d).mssim_y; }};
+  }
+  if (!(t.value > 0 && std::isfinite(t.value)))
+    throw InputError("target BTF-CIELab mean must be a number > 0, got " + std::to_string(t.value));
+  // docs/metrics.md "BTF-CIELab as a target": about what leather shows (0.045 from Q 20 to 50, 0.034 to 70).
+  return {"btf_cielab", -1, 0.04, t.tolerance.value_or(kBtfCielabTolerance),
+          [c = t.condition](const MeasuredSample& r, const MeasuredSample& d) {
+            return btf_cielab(r, d, {.condition = c}).mean;
+          }};
+}
+
 struct Attempt {
-  double quality = 0, mssim = 0;
+  double quality = 0, goodness = 0;  // goodness = direction * the metric's value
   uint64_t bytes = 0;
 };
 
 // Whether `a` is better kept than `b`: reaching the target beats not; among those that reach it
-// fewer bytes, among those that do not a higher MSSIM.
+// fewer bytes, among those that do not the closer one.
 bool better(const Attempt& a, const Attempt& b, double target) {
-  const bool ra = a.mssim >= target, rb = b.mssim >= target;
+  const bool ra = a.goodness >= target, rb = b.goodness >= target;
   if (ra != rb) return ra;
-  return ra ? a.bytes < b.bytes : a.mssim > b.mssim;
+  return ra ? a.bytes < b.bytes : a.goodness > b.goodness;
 }
 
 // The next quality to try: between the closest attempts on either side of the target (secant), or
-// a step past the one side known so far, the slope taken from two attempts on one side when there are.
-double next_quality(const std::vector<Attempt>& tried, double target) {
-  const Attempt* below = nullptr;  // highest MSSIM under the target
-  const Attempt* above = nullptr;  // lowest MSSIM at or over it
+// a step past the one side known so far, the slope taken from two attempts on one side when there
+// are. Goodness rises with quality for every metric.
+double next_quality(const std::vector<Attempt>& tried, double target, double first_slope) {
+  const Attempt* below = nullptr;  // highest goodness under the target
+  const Attempt* above = nullptr;  // lowest goodness at or over it
   for (const Attempt& a : tried) {
-    if (a.mssim < target && (!below || a.mssim > below->mssim)) below = &a;
-    if (a.mssim >= target && (!above || a.mssim < above->mssim)) above = &a;
+    if (a.goodness < target && (!below || a.goodness > below->goodness)) below = &a;
+    if (a.goodness >= target && (!above || a.goodness < above->goodness)) above = &a;
   }
   if (below && above) {
-    const double dm = above->mssim - below->mssim;
-    const double t = dm > 1e-9 ? (target - below->mssim) / dm : 0.5;
+    const double dm = above->goodness - below->goodness;
+    const double t = dm > 1e-9 ? (target - below->goodness) / dm : 0.5;
     // Aim a little past the interpolated point: reaching the target is what counts.
     return std::clamp(below->quality + std::clamp(t * 1.1, 0.1, 0.9) * (above->quality - below->quality), 0.0, 100.0);
   }
   const Attempt& last = tried.back();
-  double slope = 0.002;  // MSSIM per quality unit, about what the presets and proposte show
+  double slope = first_slope;
   if (tried.size() >= 2) {
     const Attempt& prev = tried[tried.size() - 2];
-    if (std::abs(last.quality - prev.quality) > 1e-9) slope = std::max(1e-4, (last.mssim - prev.mssim) / (last.quality - prev.quality));
+    if (std::abs(last.quality - prev.quality) > 1e-9)
+      slope = std::max(first_slope / 20, (last.goodness - prev.goodness) / (last.quality - prev.quality));
   }
-  const double step = std::clamp((target - last.mssim) / slope * 1.1, -40.0, 40.0);
+  const double step = std::clamp((target - last.goodness) / slope * 1.1, -40.0, 40.0);
   return std::clamp(last.quality + (std::abs(step) < 2 ? (step < 0 ? -2.0 : 2.0) : step), 0.0, 100.0);
 }
 
@@ -57,7 +88,8 @@ double next_quality(const std::vector<Attempt>& tried, double target) {
 
 CompressReport compress_to_target(Database& db, const MeasuredSample& sample, const std::string& name,
                                   const QualityTarget& target, const CompressOptions& options) {
-  if (!(target.mssim > 0 && target.mssim < 1)) throw InputError("target MSSIM must lie in (0, 1), got " + std::to_string(target.mssim));
+  const MetricSpec metric = metric_of(target);
+  const double goal = metric.direction * target.value;
   std::vector<Attempt> tried;
   // Only the kept attempt's database and report are held: a copy of the code-books each.
   Attempt best;
@@ -76,26 +108,39 @@ CompressReport compress_to_target(Database& db, const MeasuredSample& sample, co
       };
     CompressReport report = compress_material(trial, sample, name, o);
     quantize_new_rows(trial);  // score what the file will hold
-    const Attempt a{q, evaluate(sample, reconstruct_sample(trial, name, sample)).mssim_y, serialize_database(trial).size()};
+    const double value = metric.score(sample, reconstruct_sample(trial, name, sample));
+    const Attempt a{q, metric.direction * value, serialize_database(trial).size()};
     tried.push_back(a);
-    if (tried.size() == 1 || better(a, best, target.mssim)) {
+    if (tried.size() == 1 || better(a, best, goal)) {
       best = a;
       best_db = std::move(trial);
       best_report = std::move(report);
     }
-    if (a.mssim >= target.mssim && a.mssim - target.mssim <= target.tolerance) break;
-    if (a.mssim < target.mssim && q >= 100) break;  // nothing higher to try
-    if (a.mssim >= target.mssim && q <= 0) break;
-    const double next = next_quality(tried, target.mssim);
+    if (a.goodness >= goal && a.goodness - goal <= metric.tolerance) break;
+    if (a.goodness < goal && q >= 100) break;  // nothing higher to try
+    if (a.goodness >= goal && q <= 0) break;
+    const double next = next_quality(tried, goal, metric.slope);
     bool seen = false;
     for (const Attempt& t : tried) seen = seen || std::abs(t.quality - next) < 0.5;
     if (seen) break;
     q = next;
   }
   nlohmann::json attempts = nlohmann::json::array();
-  for (const Attempt& a : tried) attempts.push_back({{"quality", a.quality}, {"mssim", a.mssim}, {"bytes", a.bytes}});
-  best_report.json["target"] = {{"mssim", target.mssim}, {"achieved", best.mssim}, {"quality", best.quality},
-                                {"reached", best.mssim >= target.mssim}, {"attempts", attempts}};
+  for (const Attempt& a : tried)
+    attempts.push_back({{"quality", a.quality}, {metric.name, metric.direction * a.goodness}, {"bytes", a.bytes}});
+  nlohmann::json& j = best_report.json["target"];
+  j = {{"metric", metric.name},
+       {metric.name, target.value},
+       {"achieved", metric.direction * best.goodness},
+       {"quality", best.quality},
+       {"reached", best.goodness >= goal},
+       {"bytes", best.bytes},
+       {"ratio", compression_ratio(raw_bytes(best_db), best.bytes)},
+       {"attempts", attempts}};
+  if (target.metric == TargetMetric::BtfCielab) {
+    j["resolution"] = target.condition.resolution;
+    j["speed"] = target.condition.speed;
+  }
   db = std::move(best_db);
   return best_report;
 }
