@@ -1,6 +1,7 @@
 #include "pipeline/encode/signature_table.h"
 
 #include <algorithm>
+#include <cmath>
 #include <numeric>
 
 #include "pipeline/util/parallel.h"
@@ -31,10 +32,13 @@ float scaled_distance(const float* q, const float* y, int n) {
 }
 
 void SignatureTable::Blocks::append(const float* sig) {
-  if (n % kLanes == 0) v.resize(v.size() + width * kLanes, 0.0f);
+  if (n % kLanes == 0) {
+    v.resize(v.size() + width * kLanes, 0.0f);
+    yy.resize(yy.size() + kLanes, 0.0);
+  }
   float* block = v.data() + (n / kLanes) * width * kLanes;
   for (size_t i = 0; i < width; ++i) block[i * kLanes + n % kLanes] = sig[i];
-  yy.push_back(sum_of_squares(sig, width));
+  yy[n] = sum_of_squares(sig, width);
   ++n;
 }
 
@@ -66,38 +70,76 @@ void SignatureTable::scaled_distances(const float* q, size_t first, size_t last,
   rows_.distances(q, first, last, out);
 }
 
+namespace {
+
+// The sums q . y of one query with the entries of kGroup blocks (values in double, block after block,
+// each value-major): each entry's sum in value order, as Blocks::distances() takes it (the same
+// bits), the blocks' sums side by side so that the additions do not wait on each other.
+constexpr size_t kGroup = 4;
+void group_sums(const float* q, size_t width, const double* yd, double* out) {
+  constexpr size_t L = SignatureTable::kLanes;
+  double acc[kGroup][L] = {};
+  for (size_t i = 0; i < width; ++i) {
+    const double qi = q[i];
+    for (size_t g = 0; g < kGroup; ++g) {
+      const double* y = yd + (g * width + i) * L;
+      for (size_t j = 0; j < L; ++j) acc[g][j] += qi * y[j];
+    }
+  }
+  for (size_t g = 0; g < kGroup; ++g) std::copy(acc[g], acc[g] + L, out + g * L);
+}
+
+}  // namespace
+
 void SignatureTable::Blocks::select(const float* const* qs, const double* qq, size_t nq, size_t k, size_t first,
                                    size_t last, std::vector<Neighbour>* heaps) const {
   last = std::min(last, n);
   if (first >= last || k == 0) return;
-  std::vector<double> qy(nq * kLanes);
-  for (size_t b = first / kLanes; b * kLanes < last; ++b) {
-    const float* block = v.data() + b * width * kLanes;
-    std::fill(qy.begin(), qy.end(), 0.0);
-    // Each entry's sum in value order, as distances() takes it: the same bits.
-    for (size_t i = 0; i < width; ++i) {
-      const float* y = block + i * kLanes;
-      double yd[kLanes];
-      for (size_t j = 0; j < kLanes; ++j) yd[j] = y[j];
-      for (size_t q = 0; q < nq; ++q) {
-        const double qi = qs[q][i];
-        double* acc = qy.data() + q * kLanes;
-        for (size_t j = 0; j < kLanes; ++j) acc[j] += qi * yd[j];
+  const size_t blocks = v.size() / (width * kLanes);
+  std::vector<double> yd(kGroup * width * kLanes), qy(kGroup * kLanes);
+  for (size_t b0 = first / kLanes; b0 * kLanes < last; b0 += kGroup) {
+    // kGroup blocks in double once (they stay in the cache for all queries); past the table's
+    // last block, zeros.
+    for (size_t g = 0; g < kGroup; ++g) {
+      double* out = yd.data() + g * width * kLanes;
+      if (b0 + g < blocks) {
+        const float* block = v.data() + (b0 + g) * width * kLanes;
+        for (size_t i = 0; i < width * kLanes; ++i) out[i] = block[i];
+      } else {
+        std::fill(out, out + width * kLanes, 0.0);
       }
     }
     for (size_t q = 0; q < nq; ++q) {
+      group_sums(qs[q], width, yd.data(), qy.data());
       std::vector<Neighbour>& heap = heaps[q];
-      for (size_t j = 0; j < kLanes; ++j) {
-        const size_t e = b * kLanes + j;
-        if (e < first || e >= last) continue;
-        const Neighbour c{float(distance_from(qq[q], qy[q * kLanes + j], yy[e])), uint32_t(e)};
-        if (heap.size() < k) {
-          heap.push_back(c);
-          std::push_heap(heap.begin(), heap.end());
-        } else if (c < heap.front()) {
-          std::pop_heap(heap.begin(), heap.end());
-          heap.back() = c;
-          std::push_heap(heap.begin(), heap.end());
+      for (size_t g = 0; g < kGroup && (b0 + g) * kLanes < last; ++g) {
+        const size_t b = b0 + g;
+        const double* a = qy.data() + g * kLanes;
+        const double* yb = yy.data() + b * kLanes;
+        // Once k are kept, an entry can only enter with a distance below the k-th, qq - qy^2 / yy < t
+        // (qy > 0; else the distance is qq, never below): a test without the division, with a margin
+        // far above the rounding of the float distances, so it passes every entry that can enter;
+        // those then get the exact distance.
+        unsigned pass = (1u << kLanes) - 1;
+        if (heap.size() == k && heap.front().d <= qq[q]) {
+          const double t = heap.front().d;
+          const double limit = qq[q] - t - (1e-6 * std::abs(t) + 1e-12 * qq[q]);
+          pass = 0;
+          for (size_t j = 0; j < kLanes; ++j) pass |= unsigned(a[j] > 0 && a[j] * a[j] > limit * yb[j]) << j;
+        }
+        for (; pass; pass &= pass - 1) {
+          const size_t e = b * kLanes + size_t(__builtin_ctz(pass));
+          if (e < first || e >= last) continue;
+          const size_t j = e - b * kLanes;
+          const Neighbour c{float(distance_from(qq[q], a[j], yy[e])), uint32_t(e)};
+          if (heap.size() < k) {
+            heap.push_back(c);
+            std::push_heap(heap.begin(), heap.end());
+          } else if (c < heap.front()) {
+            std::pop_heap(heap.begin(), heap.end());
+            heap.back() = c;
+            std::push_heap(heap.begin(), heap.end());
+          }
         }
       }
     }
