@@ -114,7 +114,7 @@ void write_report(const std::string& file, const std::string& out, const Databas
   for (const auto& r : s.added) materials.push_back(r.json);
   std::ofstream f(file);
   f << nlohmann::json{{"database", out}, {"bytes", s.bytes}, {"raw_bytes", s.raw_bytes},
-                      {"compression_ratio", s.ratio}, {"materials", materials}}
+                      {"compression_ratio", s.ratio}, {"write_seconds", s.write_seconds}, {"materials", materials}}
            .dump(2);
   if (!f) throw InputError("cannot write the report '" + file + "'");
 }

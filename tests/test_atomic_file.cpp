@@ -20,13 +20,6 @@ namespace fs = std::filesystem;
 
 namespace {
 
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
 size_t entries(const fs::path& dir) {
   size_t n = 0;
   for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir)) ++n;
@@ -39,9 +32,9 @@ TEST_CASE("write_file_atomically creates and replaces a file and leaves no tempo
   const fs::path dir = test::scratch_dir("atomic-file");
   const fs::path target = dir / "db.btfdb";
   write_file_atomically(target.string(), std::string("first"));
-  CHECK(slurp(target) == "first");
+  CHECK(test::file_bytes(target) == "first");
   write_file_atomically(target.string(), std::string("second, longer"));
-  CHECK(slurp(target) == "second, longer");
+  CHECK(test::file_bytes(target) == "second, longer");
   CHECK(entries(dir) == 1);
 }
 
@@ -63,7 +56,7 @@ TEST_CASE("an uncommitted AtomicFile removes its temporary and keeps the old con
     std::ofstream(f.temp_path()) << "half";
     CHECK(fs::exists(f.temp_path()));
   }
-  CHECK(slurp(target) == "old");
+  CHECK(test::file_bytes(target) == "old");
   CHECK(entries(dir) == 1);
 }
 
@@ -76,7 +69,7 @@ TEST_CASE("a folder target is replaced as a whole") {
   fs::create_directory(f.temp_path());
   std::ofstream(fs::path(f.temp_path()) / "new.txt") << "new";
   f.commit();
-  CHECK(slurp(target / "new.txt") == "new");
+  CHECK(test::file_bytes(target / "new.txt") == "new");
   CHECK_FALSE(fs::exists(target / "old.txt"));
   CHECK(entries(dir) == 1);
 }

@@ -24,13 +24,6 @@ const Database& alu() {
   return db;
 }
 
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
 void spit(const fs::path& p, const std::string& text) {
   std::ofstream out(p, std::ios::binary | std::ios::trunc);
   out << text;
@@ -48,7 +41,7 @@ fs::path alu_copy(const std::string& name) {
 
 // Replaces the value at data row `row`, column `col` of a matrix file.
 void set_value(const fs::path& file, size_t row, size_t col, const std::string& value) {
-  std::istringstream in(slurp(file));
+  std::istringstream in(test::file_bytes(file));
   std::string out, line;
   for (size_t l = 0; std::getline(in, line); ++l) {
     if (l == row + 1) {
@@ -131,14 +124,14 @@ TEST_CASE("export then import reproduces alu exactly, and decodes identically") 
                         "alu_PDF6Dslices.txt", "alu_PDF6Dscale.txt", "alu_materialInfo.txt"})
     CHECK_MESSAGE(fs::exists(out / f), f);
   // P6 is written 1-based, like the original.
-  CHECK(slurp(out / "alu_PDF6Dslices.txt").substr(0, 20) == "64 64 1 34\n12 12 18 ");
+  CHECK(test::file_bytes(out / "alu_PDF6Dslices.txt").substr(0, 20) == "64 64 1 34\n12 12 18 ");
   const Database again = import_btfbase(out.string());
   CHECK(same(again, alu()));
 
   // Exporting the re-import writes byte-identical files (the writer is deterministic).
   const fs::path out2 = test::scratch_dir("roundtrip2") / "alu-export";
   export_btfbase(again, out2.string());
-  for (const auto& e : fs::directory_iterator(out)) CHECK(slurp(e.path()) == slurp(out2 / e.path().filename()));
+  for (const auto& e : fs::directory_iterator(out)) CHECK(test::file_bytes(e.path()) == test::file_bytes(out2 / e.path().filename()));
 
   const Decoder a(alu()), b(again);
   std::mt19937 rng(5);
@@ -226,7 +219,7 @@ TEST_CASE("an out-of-range P6 index and a negative index are refused") {
 
 TEST_CASE("a truncated matrix file, a short row and a non-numeric token name the file") {
   const fs::path dir = alu_copy("truncated");
-  const std::string text = slurp(dir / "all_PDF2Dscale.txt");
+  const std::string text = test::file_bytes(dir / "all_PDF2Dscale.txt");
   spit(dir / "all_PDF2Dscale.txt", text.substr(0, text.size() / 2));
   const std::string msg = error_of<CorruptError>(dir);
   CHECK_MESSAGE(contains(msg, "all_PDF2Dscale.txt"), msg);
@@ -266,7 +259,7 @@ TEST_CASE("a missing file or directory is an InputError naming it") {
 
 TEST_CASE("a code-book size in all_materialInfo.txt that disagrees with its file is refused") {
   const fs::path dir = alu_copy("sizes");
-  std::string info = slurp(dir / "all_materialInfo.txt");
+  std::string info = test::file_bytes(dir / "all_materialInfo.txt");
   const auto at = info.find("1381 2 5 1723");
   REQUIRE(at != std::string::npos);
   info.replace(at, 4, "1380");
@@ -278,7 +271,7 @@ TEST_CASE("a code-book size in all_materialInfo.txt that disagrees with its file
 
 TEST_CASE("a material name that would leave the directory is refused") {
   const fs::path dir = alu_copy("name");
-  std::string info = slurp(dir / "all_materialInfo.txt");
+  std::string info = test::file_bytes(dir / "all_materialInfo.txt");
   const auto at = info.rfind("alu ./indata");
   REQUIRE(at != std::string::npos);
   info.replace(at, 3, "../x");

@@ -72,11 +72,6 @@ void write_zip(const fs::path& zip, const std::vector<std::pair<std::string, std
   archive_write_free(a);
 }
 
-std::string slurp(const fs::path& file) {
-  std::ifstream in(file, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), {});
-}
-
 // The Bonn sample written once per test process as a directory; error tests damage copies of it.
 const fs::path& written_directory() {
   static const fs::path dir = [] {
@@ -306,7 +301,7 @@ TEST_CASE("a truncated JPEG is an error naming it") {
 
 TEST_CASE("a truncated JPEG inside a zip is an error naming the entry") {
   const fs::path dir = test::scratch_dir("truncatedzip");
-  const std::string good = slurp(written_directory() / "tv000_pv000/00000 tl000 pl000 tv000 pv000.jpg");
+  const std::string good = test::file_bytes(written_directory() / "tv000_pv000/00000 tl000 pl000 tv000 pv000.jpg");
   write_zip(dir / "t.zip", {{"a/tl000_pl000_tv010_pv000.jpg", good}, {"a/tl000_pl000_tv020_pv000.jpg", good.substr(0, good.size() / 2)}});
   check_load_error(dir / "t.zip", "a/tl000_pl000_tv020_pv000.jpg");
 }
@@ -369,7 +364,7 @@ TEST_CASE("mixed LDR and HDR images are an error naming both") {
 
 TEST_CASE("zip entries with '..' or absolute paths reject the whole archive") {
   const fs::path dir = test::scratch_dir("evil");
-  const std::string good = slurp(written_directory() / "tv000_pv000/00000 tl000 pl000 tv000 pv000.jpg");
+  const std::string good = test::file_bytes(written_directory() / "tv000_pv000/00000 tl000 pl000 tv000 pv000.jpg");
   write_zip(dir / "dotdot.zip", {{"x/tl000_pl000_tv000_pv000.jpg", good}, {"../evil.jpg", good}});
   write_zip(dir / "abs.zip", {{"x/tl000_pl000_tv000_pv000.jpg", good}, {"/abs.jpg", good}});
   write_zip(dir / "inner.zip", {{"x/tl000_pl000_tv000_pv000.jpg", good}, {"x/../../evil.txt", "not even an image"}});

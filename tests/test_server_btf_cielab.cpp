@@ -21,26 +21,6 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 namespace {
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
-// `btfvq ARGS`: its stdout without the trailing newline; REQUIREs success.
-std::string cli(const fs::path& dir, const std::string& args) {
-  const fs::path out = dir / "cli-stdout.txt";
-  std::string all;
-  const int status = run_command((bin_dir() / "btfvq").string() + " " + args + " > " + out.string(), &all);
-  INFO("btfvq " << args << ": " << all);
-  REQUIRE(status == 0);
-  std::string text = slurp(out);
-  while (!text.empty() && (text.back() == '\n' || text.back() == ' ')) text.pop_back();
-  return text;
-}
-
 // Follows the job's event stream to its end (the stream closes then); returns every event's job.
 std::vector<json> follow(const std::string& url, const std::string& id) {
   httplib::Client c(url);
@@ -55,15 +35,6 @@ std::vector<json> follow(const std::string& url, const std::string& id) {
   REQUIRE(!events.empty());
   return events;
 }
-
-json get_json(const std::string& url, const std::string& path) {
-  httplib::Client c(url);
-  auto r = c.Get(path.c_str());
-  REQUIRE(r);
-  REQUIRE(r->status == 200);
-  return json::parse(r->body);
-}
-
 bool close(double a, double b) { return std::abs(a - b) <= 1e-9 * std::max(std::abs(a), std::abs(b)); }
 
 }  // namespace
@@ -73,11 +44,11 @@ TEST_CASE("a job with btf_cielab: its result carries what btfvq eval computes fo
   ServerProcess server(dir / "data", free_loopback_port());
   const std::string s = "--server " + server.url();
   const std::string sample = (dir / "leather16.zip").string();
-  cli(dir, "synth --preset leather --size 16 --seed 2 --out " + sample);
+  btfvq_ok(dir, "synth --preset leather --size 16 --seed 2 --out " + sample);
 
   // Not the default condition, so that the value is seen to follow the request. The job id is the
   // last line (the upload's progress comes first).
-  std::string id = cli(dir, "submit " + s + " --db shop --upload " + sample + " --name m --btf-cielab 30,200");
+  std::string id = btfvq_ok(dir, "submit " + s + " --db shop --upload " + sample + " --name m --btf-cielab 30,200");
   id = id.substr(id.find_last_of('\n') + 1);
   const std::vector<json> events = follow(server.url(), id);
   std::set<std::string> stages;
@@ -103,9 +74,9 @@ TEST_CASE("a job with btf_cielab: its result carries what btfvq eval computes fo
   CHECK(get_json(server.url(), "/v1/databases/shop")["newest"]["materials"][0]["report"]["btf_cielab"] == got);
 
   const fs::path db = dir / "shop.btfdb", report = dir / "eval.json";
-  cli(dir, "download " + s + " shop --out " + db.string());
-  cli(dir, "eval " + db.string() + " --reference " + sample + " --metric btf-cielab:30,200 --json " + report.string());
-  const json eval = json::parse(slurp(report))["btf_cielab"];
+  btfvq_ok(dir, "download " + s + " shop --out " + db.string());
+  btfvq_ok(dir, "eval " + db.string() + " --reference " + sample + " --metric btf-cielab:30,200 --json " + report.string());
+  const json eval = json::parse(file_bytes(report))["btf_cielab"];
   CHECK(close(got["mean"].get<double>(), eval["mean"].get<double>()));
   CHECK(close(got["std"].get<double>(), eval["stddev"].get<double>()));
   CHECK(close(got["rms"].get<double>(), eval["rms"].get<double>()));
@@ -114,7 +85,7 @@ TEST_CASE("a job with btf_cielab: its result carries what btfvq eval computes fo
 TEST_CASE("a job without btf_cielab has no such key; bad values are a 400 naming the field") {
   const fs::path dir = scratch_dir("server-btf-cielab-plain");
   ServerProcess server(dir / "data", free_loopback_port());
-  const std::string id = cli(dir, "submit --server " + server.url() + " --db plain --synthetic tile:8 --name t");
+  const std::string id = btfvq_ok(dir, "submit --server " + server.url() + " --db plain --synthetic tile:8 --name t");
   REQUIRE(follow(server.url(), id).back()["state"] == "succeeded");
   const json job = get_json(server.url(), "/v1/jobs/" + id);
   REQUIRE(job["results"].size() == 1);

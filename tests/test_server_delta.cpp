@@ -23,33 +23,6 @@ using nlohmann::json;
 
 namespace {
 
-struct Run {
-  int status;
-  std::string out;
-};
-
-Run cli(const fs::path& dir, const std::string& args) {
-  Run r;
-  const fs::path out = dir / "cli-stdout.txt";
-  std::string all;
-  r.status = run_command((bin_dir() / "btfvq").string() + " " + args + " > " + out.string(), &all);
-  std::ifstream in(out);
-  std::stringstream s;
-  s << in.rdbuf();
-  r.out = s.str();
-  while (!r.out.empty() && (r.out.back() == '\n' || r.out.back() == ' ')) r.out.pop_back();
-  if (r.status != 0) MESSAGE("btfvq " << args << " -> " << r.status << ": " << all);
-  return r;
-}
-
-json get_json(const std::string& url, const std::string& path) {
-  httplib::Client c(url);
-  auto r = c.Get(path.c_str());
-  REQUIRE(r);
-  REQUIRE(r->status == 200);
-  return json::parse(r->body);
-}
-
 double bytes_served(const std::string& url) {
   httplib::Client c(url);
   auto r = c.Get("/metrics");
@@ -71,9 +44,9 @@ uint64_t transferred(const std::string& line) {
 }
 
 void run_job(const fs::path& dir, const std::string& s, const std::string& job_args) {
-  const Run job = cli(dir, "submit " + s + " " + job_args);
+  const CliRun job = run_btfvq(dir, "submit " + s + " " + job_args);
   REQUIRE(job.status == 0);
-  REQUIRE(cli(dir, "watch " + s + " " + job.out).status == 0);
+  REQUIRE(run_btfvq(dir, "watch " + s + " " + job.out).status == 0);
 }
 
 }  // namespace
@@ -85,14 +58,14 @@ TEST_CASE("delta download: version 1 -> 2 fetches fewer bytes than the file; dam
   const std::string out = (dir / "shop.btfdb").string();
 
   run_job(dir, s, "--db shop --synthetic wood:8 --name wood8");
-  Run first = cli(dir, "download " + s + " shop --out " + out);
+  CliRun first = run_btfvq(dir, "download " + s + " shop --out " + out);
   REQUIRE(first.status == 0);
   const uint64_t size1 = fs::file_size(out);
   CHECK(transferred(first.out) == size1);
   CHECK(first.out.find("delta-from") == std::string::npos);
 
   // The same version again: nothing to fetch.
-  Run again = cli(dir, "download " + s + " shop --out " + out);
+  CliRun again = run_btfvq(dir, "download " + s + " shop --out " + out);
   REQUIRE(again.status == 0);
   CHECK(transferred(again.out) == 0);
   CHECK(again.out.find("delta-from 1") != std::string::npos);
@@ -111,7 +84,7 @@ TEST_CASE("delta download: version 1 -> 2 fetches fewer bytes than the file; dam
   CHECK(v2["layout"]["prefixes"][1]["end"] == v2["size"]);
 
   const double served_before = bytes_served(server.url());
-  Run delta = cli(dir, "download " + s + " shop --out " + out);
+  CliRun delta = run_btfvq(dir, "download " + s + " shop --out " + out);
   REQUIRE(delta.status == 0);
   const double served = bytes_served(server.url()) - served_before;
   const uint64_t size2 = fs::file_size(out);
@@ -131,11 +104,11 @@ TEST_CASE("delta download: version 1 -> 2 fetches fewer bytes than the file; dam
   {
     const std::string old = (dir / "old.btfdb").string();
     fs::copy_file(out, old);
-    Run r = cli(dir, "download " + s + " shop --version 1 --out " + old);
+    CliRun r = run_btfvq(dir, "download " + s + " shop --version 1 --out " + old);
     REQUIRE(r.status == 0);
     CHECK(sha256_file(old) == v1["sha256"].get<std::string>());
     // ... and from there to version 2 by a delta again.
-    Run up = cli(dir, "download " + s + " shop --out " + old);
+    CliRun up = run_btfvq(dir, "download " + s + " shop --out " + old);
     REQUIRE(up.status == 0);
     CHECK(up.out.find("delta-from 1") != std::string::npos);
     CHECK(sha256_file(old) == v2["sha256"].get<std::string>());
@@ -152,7 +125,7 @@ TEST_CASE("delta download: version 1 -> 2 fetches fewer bytes than the file; dam
     f.put(char(c ^ 0x5a));
   }
   REQUIRE(sha256_file(out) != v2["sha256"].get<std::string>());
-  Run full = cli(dir, "download " + s + " shop --out " + out);
+  CliRun full = run_btfvq(dir, "download " + s + " shop --out " + out);
   REQUIRE(full.status == 0);
   CHECK(full.out.find("delta-from") == std::string::npos);
   CHECK(transferred(full.out) == size2);
@@ -160,7 +133,7 @@ TEST_CASE("delta download: version 1 -> 2 fetches fewer bytes than the file; dam
 
   // A file that is no database at all: a full download too.
   std::ofstream(out, std::ios::trunc) << "not a database";
-  Run junk = cli(dir, "download " + s + " shop --out " + out);
+  CliRun junk = run_btfvq(dir, "download " + s + " shop --out " + out);
   REQUIRE(junk.status == 0);
   CHECK(transferred(junk.out) == size2);
   CHECK(sha256_file(out) == v2["sha256"].get<std::string>());

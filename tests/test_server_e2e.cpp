@@ -30,41 +30,11 @@ using nlohmann::json;
 
 namespace {
 
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
-struct Run {
-  int status;
-  std::string out;
-};
-Run cli(const fs::path& dir, const std::string& args) {
-  Run r;
-  const fs::path out = dir / "cli-stdout.txt";
-  std::string all;
-  r.status = run_command((bin_dir() / "btfvq").string() + " " + args + " > " + out.string(), &all);
-  r.out = slurp(out);
-  while (!r.out.empty() && (r.out.back() == '\n' || r.out.back() == ' ')) r.out.pop_back();
-  if (r.status != 0) MESSAGE("btfvq " << args << " -> " << r.status << ": " << all);
-  return r;
-}
-
-json get_json(const std::string& url, const std::string& path) {
-  httplib::Client c(url);
-  auto r = c.Get(path.c_str());
-  REQUIRE(r);
-  return json::parse(r->body);
-}
-
 // Submits a job with the CLI and waits until it is done; returns the job id.
 std::string run_job(const fs::path& dir, const std::string& server_args, const std::string& job_args) {
-  const Run job = cli(dir, "submit " + server_args + " " + job_args);
+  const CliRun job = run_btfvq(dir, "submit " + server_args + " " + job_args);
   REQUIRE(job.status == 0);
-  REQUIRE(cli(dir, "watch " + server_args + " " + job.out).status == 0);
+  REQUIRE(run_btfvq(dir, "watch " + server_args + " " + job.out).status == 0);
   return job.out;
 }
 
@@ -80,7 +50,7 @@ TEST_CASE("real jobs: submit, watch, download with sha256, two versions of one d
 
   const json info = get_json(server.url(), "/v1/databases/shop");
   CHECK(info["versions"].size() == 2);
-  REQUIRE(cli(dir, "download " + s + " shop --out " + (dir / "shop.btfdb").string()).status == 0);
+  REQUIRE(run_btfvq(dir, "download " + s + " shop --out " + (dir / "shop.btfdb").string()).status == 0);
   const Database db = read_database((dir / "shop.btfdb").string());
   REQUIRE(db.materials.size() == 2);
   CHECK(db.materials[0].name == "tile8");
@@ -89,7 +59,7 @@ TEST_CASE("real jobs: submit, watch, download with sha256, two versions of one d
   double sum = 0;
   for (uint8_t v : tile.ldr_data()) sum += v;
   CHECK(sum / double(tile.ldr_data().size()) > 20.0);  // a real, lit material came back
-  CHECK(cli(dir, "ls " + s).out.find("shop") != std::string::npos);
+  CHECK(run_btfvq(dir, "ls " + s).out.find("shop") != std::string::npos);
 }
 
 TEST_CASE("kill -9 during a job, restart: the job completes with the same database as an uninterrupted run") {
@@ -100,12 +70,12 @@ TEST_CASE("kill -9 during a job, restart: the job completes with the same databa
   {
     ServerProcess server(dir / "clean", free_loopback_port());
     run_job(dir, "--server " + server.url(), job_args);
-    REQUIRE(cli(dir, "download --server " + server.url() + " fabric --out " + (dir / "clean.btfdb").string()).status == 0);
-    reference = slurp(dir / "clean.btfdb");
+    REQUIRE(run_btfvq(dir, "download --server " + server.url() + " fabric --out " + (dir / "clean.btfdb").string()).status == 0);
+    reference = file_bytes(dir / "clean.btfdb");
   }
   const int port = free_loopback_port();
   ServerProcess server(dir / "killed", port);
-  const Run job = cli(dir, "submit --server " + server.url() + job_args);
+  const CliRun job = run_btfvq(dir, "submit --server " + server.url() + job_args);
   REQUIRE(job.status == 0);
   // Wait until the job is encoding, then kill the server without warning.
   bool encoding = false;
@@ -117,9 +87,9 @@ TEST_CASE("kill -9 during a job, restart: the job completes with the same databa
   REQUIRE(encoding);
   server.kill9();
   server.start();
-  REQUIRE(cli(dir, "watch --server " + server.url() + " " + job.out).status == 0);
-  REQUIRE(cli(dir, "download --server " + server.url() + " fabric --out " + (dir / "killed.btfdb").string()).status == 0);
-  CHECK(slurp(dir / "killed.btfdb") == reference);
+  REQUIRE(run_btfvq(dir, "watch --server " + server.url() + " " + job.out).status == 0);
+  REQUIRE(run_btfvq(dir, "download --server " + server.url() + " fabric --out " + (dir / "killed.btfdb").string()).status == 0);
+  CHECK(file_bytes(dir / "killed.btfdb") == reference);
   const json info = get_json(server.url(), "/v1/databases/fabric");
   CHECK(info["versions"].size() == 1);  // nothing half-written was published
 }
@@ -129,7 +99,7 @@ TEST_CASE("20 concurrent clients poll and download while a job runs: no failed r
   ServerProcess server(dir / "data", free_loopback_port());
   const std::string s = "--server " + server.url();
   run_job(dir, s, "--db load --synthetic tile:8 --name a");
-  const Run running = cli(dir, "submit " + s + " --db load --synthetic fabric:16 --name b");
+  const CliRun running = run_btfvq(dir, "submit " + s + " --db load --synthetic fabric:16 --name b");
   REQUIRE(running.status == 0);
 
   std::atomic<int> failures{0}, corrupt{0}, downloads{0}, polls{0};
@@ -156,13 +126,13 @@ TEST_CASE("20 concurrent clients poll and download while a job runs: no failed r
   CHECK(corrupt == 0);
   CHECK(polls == 200);
   CHECK(downloads == 200);
-  CHECK(cli(dir, "watch " + s + " " + running.out).status == 0);
+  CHECK(run_btfvq(dir, "watch " + s + " " + running.out).status == 0);
 }
 
 TEST_CASE("cancel a running job: watch reports it, nothing is published") {
   const fs::path dir = scratch_dir("e2e-cancel");
   ServerProcess server(dir / "data", free_loopback_port());
-  const Run job = cli(dir, "submit --server " + server.url() + " --db c --synthetic wool:32 --name w");
+  const CliRun job = run_btfvq(dir, "submit --server " + server.url() + " --db c --synthetic wool:32 --name w");
   REQUIRE(job.status == 0);
   bool running = false;
   for (int i = 0; i < 3000 && !running; ++i) {
@@ -174,7 +144,7 @@ TEST_CASE("cancel a running job: watch reports it, nothing is published") {
   auto r = http.Delete(("/v1/jobs/" + job.out).c_str());
   REQUIRE(r);
   CHECK(r->status < 300);
-  CHECK(cli(dir, "watch --server " + server.url() + " " + job.out).status == 5);
+  CHECK(run_btfvq(dir, "watch --server " + server.url() + " " + job.out).status == 5);
   CHECK(get_json(server.url(), "/v1/jobs/" + job.out)["state"] == "cancelled");
   auto db = http.Get("/v1/databases/c");
   REQUIRE(db);

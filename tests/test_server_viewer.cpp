@@ -30,24 +30,6 @@ using nlohmann::json;
 
 namespace {
 
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
-std::string cli(const fs::path& dir, const std::string& args) {
-  const fs::path out = dir / "cli-stdout.txt";
-  std::string all;
-  const int status = run_command((bin_dir() / "btfvq").string() + " " + args + " > " + out.string(), &all);
-  INFO("btfvq " << args << ": " << all);
-  REQUIRE(status == 0);
-  std::string text = slurp(out);
-  while (!text.empty() && (text.back() == '\n' || text.back() == ' ')) text.pop_back();
-  return text;
-}
-
 struct Image {
   int width = 0, height = 0, channels = 0;
   std::vector<uint8_t> pixels;
@@ -77,7 +59,7 @@ double bytes_served(const std::string& url) {
 // Stored bytes of the sections one material needs: its own and every code-book chunk of its version
 // or before (what the page must fetch, besides the head).
 uint64_t needed_bytes(const fs::path& file, const std::string& material) {
-  const std::string bytes = slurp(file);
+  const std::string bytes = file_bytes(file);
   const auto* data = reinterpret_cast<const uint8_t*>(bytes.data());
   const DatabaseHead head = parse_head(data, bytes.size(), file.string());
   uint32_t version = 0;
@@ -102,7 +84,7 @@ json run_browser(const std::string& page, const fs::path& out) {
   const std::string script = (fs::path(BTFVQ_SOURCE_DIR) / "tests" / "viewer_browser.py").string();
   const int status = run_command("python3 " + script + " '" + page + "' " + out.string() + " 120", &output);
   if (status != 0) FAIL("viewer_browser.py: " << output);
-  return json::parse(slurp(out / "record.json"));
+  return json::parse(file_bytes(out / "record.json"));
 }
 
 // Mean absolute difference per channel of `render` and the canvas sampled at the centre of each of
@@ -123,8 +105,8 @@ std::array<double, 3> mean_difference(const Image& render, const Image& canvas) 
 // Submits a job and waits until it is done (the job id is the last word `btfvq submit` prints, after
 // any upload progress).
 void run_job(const fs::path& dir, const std::string& server_args, const std::string& job_args) {
-  const std::string out = cli(dir, "submit " + server_args + " " + job_args);
-  cli(dir, "watch " + server_args + " " + out.substr(out.find_last_of(" \n") + 1));
+  const std::string out = btfvq_ok(dir, "submit " + server_args + " " + job_args);
+  btfvq_ok(dir, "watch " + server_args + " " + out.substr(out.find_last_of(" \n") + 1));
 }
 
 }  // namespace
@@ -172,14 +154,14 @@ TEST_CASE("viewer in headless Chromium: streams a material, draws it like btfvq 
   // must not fetch them.
   run_job(dir, s, "--db shop --synthetic leather:32 --name leather --seed 3");
   const fs::path wood = dir / "wood-hdr.zip";
-  cli(dir, "synth --preset wood --size 16 --hdr --seed 2 --out " + wood.string());
+  btfvq_ok(dir, "synth --preset wood --size 16 --hdr --seed 2 --out " + wood.string());
   run_job(dir, s, "--db shop --upload " + wood.string() + " --name wood-hdr");
   const fs::path db = dir / "shop.btfdb";
-  cli(dir, "download " + s + " shop --out " + db.string());
+  btfvq_ok(dir, "download " + s + " shop --out " + db.string());
   // The directions of the comparison: generic ones (between grid nodes in every dimension).
   const std::string light = "35,120", view = "20,60";
   for (const char* material : {"leather", "wood-hdr"})
-    cli(dir, "render " + db.string() + " --material " + material + " --light " + light + " --view " + view + " --out " +
+    btfvq_ok(dir, "render " + db.string() + " --material " + material + " --light " + light + " --view " + view + " --out " +
                  (dir / (std::string(material) + ".png")).string());
 
   const double served_before = bytes_served(server.url());
@@ -240,7 +222,7 @@ TEST_CASE("viewer in headless Chromium: streams a material, draws it like btfvq 
   }
 
   {  // the sphere is btfvq render --scene sphere's image, pixel for pixel
-    cli(dir, "render " + db.string() + " --material leather --scene sphere --light 40,135 --tiles 2 --size 512 --out " +
+    btfvq_ok(dir, "render " + db.string() + " --material leather --scene sphere --light 40,135 --tiles 2 --size 512 --out " +
                  (dir / "sphere.png").string());
     run_browser(server.url() + "/viewer/shop/leather?scene=sphere&light=40,135&tiles=2", dir / "sphere");
     const auto diff = mean_difference(read_png(dir / "sphere.png"), read_png(dir / "sphere" / "canvas.png"));

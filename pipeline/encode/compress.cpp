@@ -4,8 +4,6 @@
 #include <chrono>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
-#include <iterator>
 #include <optional>
 #include <set>
 
@@ -388,10 +386,8 @@ namespace {
 
 std::vector<uint8_t> read_previous(const std::string& path) {
   if (path.empty() || !std::filesystem::exists(path)) return {};
-  std::ifstream in(path, std::ios::binary);
-  std::vector<uint8_t> bytes{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-  if (!in.good() && !in.eof()) throw InputError("cannot read the database '" + path + "'");
-  return bytes;
+  const std::string bytes = read_file(path, " (the database to add to)");
+  return {bytes.begin(), bytes.end()};
 }
 
 // Share of one input's progress that loading takes (the rest is compress_material's own fraction).
@@ -486,6 +482,7 @@ DatabaseSummary compress_database(const std::string& previous, const std::vector
     if (folder) folder->save_state(i + 1, db, first_new, nullptr);
   }
   if (options.progress) options.progress({"write", 0, 0, 0, 1.0, CodebookSizes::of(db.codebooks), "", 0, inputs.size()});
+  const auto t_write = std::chrono::steady_clock::now();
   // Round the new rows to what the file stores, so the in-memory model and the file decode alike.
   quantize_new_rows(db);
   const std::vector<uint8_t> bytes = serialize_database(db, {}, previous_bytes.empty() ? nullptr : &previous_bytes);
@@ -494,6 +491,7 @@ DatabaseSummary compress_database(const std::string& previous, const std::vector
   summary.raw_bytes = raw_bytes(db);
   summary.ratio = compression_ratio(summary.raw_bytes, summary.bytes);
   summary.materials = db.materials.size();
+  summary.write_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_write).count();
   return summary;
 }
 

@@ -105,6 +105,7 @@ struct DatabaseSummary {
   uint64_t raw_bytes = 0;  // of every material's measured input (the old ones included)
   double ratio = 0;        // compression_ratio(raw_bytes, bytes)
   size_t materials = 0;    // in the database now
+  double write_seconds = 0;  // quantizing the new rows, serializing (entropy coding) and writing
   std::vector<CompressReport> added;  // one per input, in order
 };
 

@@ -9,6 +9,7 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <thread>
 
@@ -59,5 +60,14 @@ class ServerProcess {
   int port_;
   pid_t pid_ = -1;
 };
+
+// GET `path` from the server at `url`, REQUIRing 200; the body as JSON.
+inline nlohmann::json get_json(const std::string& url, const std::string& path) {
+  httplib::Client c(url);
+  auto r = c.Get(path.c_str());
+  REQUIRE(r);
+  REQUIRE(r->status == 200);
+  return nlohmann::json::parse(r->body);
+}
 
 }  // namespace btfvq::test

@@ -1,5 +1,7 @@
 #include "support/test_paths.h"
 
+#include <doctest/doctest.h>
+
 #include <netinet/in.h>
 #include <sys/socket.h>
 #include <unistd.h>
@@ -7,6 +9,8 @@
 #include <array>
 #include <cstdio>
 #include <cstdlib>
+#include <fstream>
+#include <iterator>
 #include <sys/wait.h>
 
 namespace btfvq::test {
@@ -61,6 +65,29 @@ int run_command(const std::string& command, std::string* output) {
   const int status = ::pclose(pipe);
   if (output) *output = out;
   return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+std::string file_bytes(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+CliRun run_btfvq(const fs::path& dir, const std::string& args) {
+  CliRun r;
+  const fs::path out = dir / "cli-stdout.txt";
+  r.status = run_command((bin_dir() / "btfvq").string() + " " + args + " > " + out.string(), &r.all);
+  r.out = file_bytes(out);
+  r.all = r.out + r.all;
+  while (!r.out.empty() && (r.out.back() == '\n' || r.out.back() == ' ')) r.out.pop_back();
+  if (r.status != 0) MESSAGE("btfvq " << args << " -> " << r.status << ": " << r.all);
+  return r;
+}
+
+std::string btfvq_ok(const fs::path& dir, const std::string& args) {
+  const CliRun r = run_btfvq(dir, args);
+  INFO("btfvq " << args << ": " << r.all);
+  REQUIRE(r.status == 0);
+  return r.out;
 }
 
 }  // namespace btfvq::test

@@ -17,4 +17,17 @@ int free_loopback_port();
 // Runs a shell command, returns its exit status; stdout+stderr go to `output` when given.
 int run_command(const std::string& command, std::string* output = nullptr);
 
+// A whole file's bytes ("" when it cannot be read).
+std::string file_bytes(const std::filesystem::path& p);
+
+// `btfvq ARGS` (the built CLI) with its stdout kept apart, in a file under `dir`: the exit status,
+// stdout without its trailing newline, and stdout+stderr. A failure is reported as a test MESSAGE.
+struct CliRun {
+  int status = -1;
+  std::string out, all;
+};
+CliRun run_btfvq(const std::filesystem::path& dir, const std::string& args);
+// The same, REQUIRing success; returns stdout.
+std::string btfvq_ok(const std::filesystem::path& dir, const std::string& args);
+
 }  // namespace btfvq::test
