@@ -46,17 +46,6 @@ json body(const httplib::Result& r) {
   return json::parse(r->body);
 }
 
-int connect_to(int port) {
-  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  REQUIRE(fd >= 0);
-  sockaddr_in to{};
-  to.sin_family = AF_INET;
-  to.sin_port = htons(uint16_t(port));
-  to.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  REQUIRE(::connect(fd, reinterpret_cast<sockaddr*>(&to), sizeof to) == 0);
-  return fd;
-}
-
 void send_all(int fd, const char* p, size_t n) {
   for (size_t sent = 0; sent < n;) {
     const ssize_t k = ::send(fd, p + sent, n - sent, MSG_NOSIGNAL);
@@ -69,7 +58,7 @@ void send_all(int fd, const char* p, size_t n) {
 // once the server has let go of the upload (its bytes so far are what GET reports).
 void cut_piece(const TestServer& t, const std::string& id, const std::string& data, uint64_t first, uint64_t length,
                uint64_t sent) {
-  const int fd = connect_to(t.port);
+  const int fd = connect_loopback(t.port);
   const std::string head = "PUT /v1/uploads/" + id + " HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Range: " +
                            range(first, length, data.size()) + "\r\nContent-Length: " + std::to_string(length) +
                            "\r\nContent-Type: application/octet-stream\r\n\r\n";

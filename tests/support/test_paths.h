@@ -13,6 +13,8 @@ std::filesystem::path scratch_dir(const std::string& name);
 
 // A TCP port on 127.0.0.1 that was free a moment ago (for servers started by tests).
 int free_loopback_port();
+// A TCP connection to 127.0.0.1:port (REQUIREs success); the caller closes the descriptor.
+int connect_loopback(int port);
 
 // Runs a shell command, returns its exit status; stdout+stderr go to `output` when given.
 int run_command(const std::string& command, std::string* output = nullptr);
