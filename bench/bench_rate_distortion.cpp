@@ -343,9 +343,10 @@ std::string why_not_2x(const Matched& m, double ceiling, double lo, double hi) {
   std::snprintf(num, sizeof num, "%.3f", ceiling);
   if (ceiling - hi > 0.05)
     w << "The parametrization alone keeps MSSIM at " << num
-      << ", so btfvq's loss comes from its code-books: in phase 3 (about 95% of the texels) a texel takes one of the "
-         "P4 entries grown by the phase-1/2 texels, times a scale, so its quality is bounded by what those few hundred "
-         "entries cover. ";
+      << ", so btfvq's loss comes from its code-books: the P3 and lower levels are grown by the phase-1/2 texels "
+         "(about 6% of them) and frozen, and phase 3 (the rest) picks a stored P4 entry or composes a new one from "
+         "those frozen P3 entries, so a higher quality buys more composed P4 entries (bytes) over the same frozen "
+         "parts rather than closer parts. ";
   else
     w << "btfvq is within 0.05 of the parametrization's ceiling (MSSIM " << num << "), so its remaining loss is the "
          "resampling's, which no threshold removes. ";
