@@ -2,6 +2,8 @@
 
 #include <cmath>
 #include <numeric>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include "pipeline/codebook.h"
@@ -337,14 +339,17 @@ TEST_CASE("black texels (LDR 16/128/128, HDR zero) encode and reconstruct exactl
   }
 }
 
-TEST_CASE("P4 and P3 searches spread over two threads grow exactly the code-books of one thread") {
+TEST_CASE("searches, parts searched ahead and composition checks on two threads grow exactly the code-books of one thread") {
   SyntheticMaterial mat(16, 16);
   mat.classes = 5;
-  for (int limit : {32, 0}) {  // the shipped approximate search, and every candidate
+  // The shipped approximate search, a tight one, every candidate; and the MSE metric.
+  for (auto [metric, limit] : {std::pair{Metric::SSIM, 32}, {Metric::SSIM, 2}, {Metric::SSIM, 0}, {Metric::MSE, 32}}) {
     SimilaritySettings s = SimilaritySettings::defaults();
+    s.metric = metric;
     s.candidate_limit = limit;
     Codebooks one(mat.grid), two(mat.grid);
-    Encoder a(one, Dynamic::LDR, Thresholds::defaults(), s), b(two, Dynamic::LDR, Thresholds::defaults(), s);
+    const Thresholds t = Thresholds::defaults(metric);
+    Encoder a(one, Dynamic::LDR, t, s), b(two, Dynamic::LDR, t, s);
     b.set_threads(2);
     for (uint32_t id = 0; id < 256; id += 3) {
       const auto texel = mat.texel(id);
@@ -356,5 +361,11 @@ TEST_CASE("P4 and P3 searches spread over two threads grow exactly the code-book
     CHECK(one == two);
     CHECK(one.p4_index.rows() > 4);  // the searches had candidates to share
     CHECK(b.stats().comparisons > 0);
+    // Parts were searched ahead, and some had to take entries inserted meanwhile into account.
+    CHECK(b.stats().ahead > 0);
+    CHECK(b.stats().ahead_extended > 0);
+    MESSAGE(std::string(metric == Metric::SSIM ? "SSIM" : "MSE") << " limit " << limit << ": " << b.stats().ahead << " parts ahead, " << b.stats().ahead_extended
+                     << " extended, " << b.stats().ahead_redone << " redone");
+    CHECK(a.stats().ahead == 0);
   }
 }

@@ -51,7 +51,8 @@ void each_table(K& k, F f) {
 json stats_json(const EncoderStats& s) {
   return {{"texels", s.texels}, {"comparisons", s.comparisons}, {"pruned", s.pruned}, {"fallbacks", s.fallbacks},
           {"laesa_skipped", s.laesa_skipped}, {"miss", s.inserted_miss}, {"retry", s.inserted_retry},
-          {"exact", s.inserted_exact}, {"reused", s.reused}};
+          {"exact", s.inserted_exact}, {"reused", s.reused},
+          {"ahead", {s.ahead, s.ahead_extended, s.ahead_redone}}};
 }
 
 EncoderStats stats_of(const json& j) {
@@ -65,6 +66,11 @@ EncoderStats stats_of(const json& j) {
   s.inserted_retry = j.at("retry");
   s.inserted_exact = j.at("exact");
   s.reused = j.at("reused");
+  if (j.contains("ahead")) {  // checkpoints written before the parts were searched ahead have none
+    s.ahead = j["ahead"].at(0);
+    s.ahead_extended = j["ahead"].at(1);
+    s.ahead_redone = j["ahead"].at(2);
+  }
   return s;
 }
 

@@ -298,6 +298,9 @@ CompressReport compress_one(Database& db, const MeasuredSample& sample, const st
                                          {"retry", r.encoder.inserted_retry},
                                          {"exact", r.encoder.inserted_exact}}},
                            {"reused_identical", r.encoder.reused},
+                           {"searched_ahead", {{"parts", r.encoder.ahead},
+                                               {"extended", r.encoder.ahead_extended},
+                                               {"redone", r.encoder.ahead_redone}}},
                            {"reclaimed", reclaimed.removed},
                            {"reachable", reclaimed.reachable}}},
               {"codebook_sizes", CodebookSizes::of(db.codebooks)}};

@@ -109,6 +109,9 @@ void EncoderStats::add(const EncoderStats& o) {
   pruned += o.pruned;
   fallbacks += o.fallbacks;
   laesa_skipped += o.laesa_skipped;
+  ahead += o.ahead;
+  ahead_extended += o.ahead_extended;
+  ahead_redone += o.ahead_redone;
   for (CodebookId id : kAllCodebooks) {
     inserted_miss[id] += o.inserted_miss[id];
     inserted_retry[id] += o.inserted_retry[id];
@@ -236,6 +239,20 @@ namespace {
 constexpr int kProbes = 8;
 // Candidate planes a composite search needs before its candidates are scored on several threads.
 constexpr size_t kParallelPlanes = 32;
+
+// body(j, scratch) for the planes j of a composition check, on the pool's threads when there are
+// planes enough to share (a P4 composition's 112), each thread with scratch of its own.
+template <class Body>
+void for_each_plane(int np, size_t threads, std::vector<float>& scratch, Body body) {
+  if (threads <= 1 || size_t(np) < kParallelPlanes) {
+    for (int j = 0; j < np; ++j) body(j, scratch.data());
+    return;
+  }
+  std::vector<std::vector<float>> own(parallel_slots(size_t(np), {threads, 1}), std::vector<float>(scratch.size()));
+  parallel_for(0, size_t(np), [&](size_t first, size_t last, size_t w) {
+    for (size_t j = first; j < last; ++j) body(int(j), own[w].data());
+  }, ParallelOptions{threads, 1});
+}
 // Stored rows a repair tries for a failing row of a plane before it stores the row exactly.
 constexpr int kReuseCandidates = 16;
 
@@ -526,6 +543,39 @@ bool Encoder::evaluate_composite(const Query& q, const PlaneRef* planes, int np,
   return true;
 }
 
+// evaluate_composite at the composition's own scale s without a bound, with the planes' values
+// computed on the pool's threads (a P4 composition has 112 planes) and added in the same order.
+double Encoder::composition_score(const Query& q, const std::vector<PlaneRef>& planes, float s, Ctx& ctx) const {
+  const int np = int(planes.size()), n = g2_.size();
+  const bool ssim = settings_.metric == Metric::SSIM;
+  const double scale = s;
+  std::vector<float> values(ssim ? size_t(np) * 3 * size_t(n) : 0);
+  std::vector<double> error(ssim ? 0 : size_t(np) * 3);
+  for_each_plane(np, threads_, ctx.scratch, [&](int j, float* scratch) {
+    for (int c = 0; c < 3; ++c) {
+      const ChannelView& x = q.at(j, c);
+      const ChannelView y = c == 0 ? p2_store_.view(planes[size_t(j)].p2, 0) : i2_store_.view(planes[size_t(j)].i2, c - 1);
+      const Affine ax = unit_affine(dyn_, c, q.unit);
+      const Affine ay = unit_affine(dyn_, c, float(q.unit * scale * planes[size_t(j)].factor));
+      if (ssim) {
+        const float* v = ssim_values(g2_, x, ax, y, ay, ctx.k.c1[c], ctx.k.c2[c], scratch);
+        std::copy(v, v + n, values.data() + size_t(j * 3 + c) * size_t(n));
+      } else {
+        error[size_t(j * 3 + c)] = squared_error(n, x, ax, y, ay);
+      }
+    }
+  });
+  ctx.acc.reset(settings_.metric, q.values, settings_.outlier_fraction, kNoBound);
+  const bool reorder = ssim && int(q.order.size()) == np;
+  for (int jj = 0; jj < np; ++jj)
+    for (int c = 0; c < 3; ++c) {
+      const int j = reorder ? q.order[size_t(jj)] : jj;
+      if (ssim) ctx.acc.add_ssim(values.data() + size_t(j * 3 + c) * size_t(n), n);
+      else ctx.acc.add_squared_error(error[size_t(j * 3 + c)]);
+    }
+  return ctx.acc.score();
+}
+
 namespace {
 
 // A query over texel planes [first_plane, first_plane + planes) borrowing the parent's statistics.
@@ -683,7 +733,7 @@ Encoder::Match Encoder::search_composite(const Query& q, int level, double thres
 }
 
 Encoder::Match Encoder::search_composite_in(const Query& q, int level, const std::vector<uint32_t>& order,
-                                            double threshold_score, Ctx& ctx) const {
+                                            double threshold_score, Ctx& ctx, size_t threads) const {
   Match best;
   if (order.empty()) return best;
   std::vector<PlaneRef> planes;  // of the pivots
@@ -742,7 +792,7 @@ Encoder::Match Encoder::search_composite_in(const Query& q, int level, const std
   // lowest index), and a bound found by any thread prunes only candidates that cannot win, so it
   // equals the sequential search.
   const bool worth = order.size() > 1 && order.size() * size_t(q.planes) >= kParallelPlanes;
-  const size_t slots = threads_ > 1 && worth ? parallel_slots(order.size(), {threads_, 1}) : 1;
+  const size_t slots = threads > 1 && worth ? parallel_slots(order.size(), {threads, 1}) : 1;
   if (slots == 1) {
     run_search(order, settings_.pruning, threshold_score,
                [&](uint32_t e, double bound, double* sc, float* s) { return eval(ctx, planes, e, bound, sc, s); },
@@ -777,7 +827,7 @@ Encoder::Match Encoder::search_composite_in(const Query& q, int level, const std
       for (double f = found.load(); sc > f && !found.compare_exchange_weak(f, sc);) {
       }
     }
-  }, ParallelOptions{threads_, 1});
+  }, ParallelOptions{threads, 1});
   best.score = kNoBound;
   for (const Slot& w : slot) {
     ctx.counts.add(w.ctx.counts);
@@ -786,6 +836,59 @@ Encoder::Match Encoder::search_composite_in(const Query& q, int level, const std
   }
   if (best.index >= 0 && best.score < threshold_score) best.index = -1;
   return best;
+}
+
+// The growing phases search a composition's parts one after the other, as a part that misses inserts
+// entries the next parts may pick. Most parts find a match, and the entries inserted before a part
+// change its search only by themselves: so every part's first search runs at once against the
+// code-books as they are (one part per thread, the grain that pays for these small searches), and
+// confirm() adds what the parts before it inserted. Empty with one thread: the plain searches then.
+std::vector<Encoder::Speculation> Encoder::speculate(const std::vector<Query>& parts, int level, double threshold,
+                                                     Ctx& ctx) const {
+  std::vector<Speculation> spec;
+  if (threads_ <= 1 || parts.size() < 2) return spec;
+  spec.resize(parts.size());
+  for (size_t k = 0; k < parts.size(); ++k) {
+    order_composite(parts[k], level, ctx);
+    spec[k].order = ctx.order;
+    spec[k].end = signatures(level).size();
+  }
+  std::vector<Ctx> slot(parallel_slots(parts.size(), {threads_, 1}));
+  for (Ctx& w : slot) {
+    w.k = ctx.k;
+    w.scratch.resize(ctx.scratch.size());
+  }
+  parallel_for(0, parts.size(), [&](size_t first, size_t last, size_t w) {
+    for (size_t k = first; k < last; ++k)
+      spec[k].best = search_composite_in(parts[k], level, spec[k].order, bound_for(threshold, parts[k].values),
+                                         slot[w], 1);
+  }, ParallelOptions{threads_, 1});
+  for (const Ctx& w : slot) ctx.counts.add(w.counts);
+  ctx.counts.ahead += parts.size();
+  return spec;
+}
+
+// The search of q now, from its speculative one. The order now is the k nearest of the entries the
+// speculation saw and those added since (the memo's exact extension), so every old entry in it was
+// in the speculation's order: if the speculation's winner is still in it, the best of the order is
+// the better of that winner and the added entries (ties go to the lower index, the old winner's).
+// Should the winner have been pushed out, the order is searched again.
+Encoder::Match Encoder::confirm(const Query& q, int level, double bound, const Speculation& s, Ctx& ctx) const {
+  if (signatures(level).size() == s.end) return s.best;
+  order_composite(q, level, ctx);
+  const std::vector<uint32_t> order = ctx.order;
+  if (s.best.index >= 0 && std::find(order.begin(), order.end(), uint32_t(s.best.index)) == order.end()) {
+    ++ctx.counts.ahead_redone;
+    return search_composite_in(q, level, order, bound, ctx);
+  }
+  std::vector<uint32_t> added;
+  for (uint32_t e : order)
+    if (e >= s.end) added.push_back(e);
+  const double floor = s.best.index >= 0 ? std::max(bound, s.best.score) : bound;
+  if (added.empty()) return s.best;
+  ++ctx.counts.ahead_extended;
+  const Match m = search_composite_in(q, level, added, floor, ctx);
+  return m.index >= 0 && (s.best.index < 0 || m.score > s.best.score) ? m : s.best;
 }
 
 Encoder::Match Encoder::search_p2(const Query& q, double threshold_score, Ctx& ctx) const {
@@ -949,6 +1052,9 @@ P6Entry Encoder::encode_growing(const float* texel) {
   stats_.pruned += ctx.counts.pruned;
   stats_.fallbacks += ctx.counts.fallbacks;
   stats_.laesa_skipped += ctx.counts.laesa_skipped;
+  stats_.ahead += ctx.counts.ahead;
+  stats_.ahead_extended += ctx.counts.ahead_extended;
+  stats_.ahead_redone += ctx.counts.ahead_redone;
   P6Entry r;
   r.index = uint32_t(m.index);
   r.scale = m.scale;
@@ -996,23 +1102,28 @@ bool Encoder::failing_parts(const Query& q, const PlaneRef* planes, int np, int 
                             Ctx& ctx, std::vector<double>& bad) const {
   const int n = g2_.size();
   const int parts = part_planes > 0 ? np / part_planes : 2;
-  bad.assign(size_t(parts), 0.0);
-  double total = 0;
-  for (int j = 0; j < np; ++j)
+  std::vector<double> miss(size_t(np) * 3);
+  for_each_plane(np, threads_, ctx.scratch, [&](int j, float* scratch) {
     for (int c = 0; c < 3; ++c) {
       const ChannelView& x = q.at(j, c);
       const ChannelView y = c == 0 ? p2_store_.view(planes[j].p2, 0) : i2_store_.view(planes[j].i2, c - 1);
       const Affine ax = unit_affine(dyn_, c, q.unit), ay = unit_affine(dyn_, c, float(q.unit * s * planes[j].factor));
       double b = 0;
       if (settings_.metric == Metric::MSE) {
-        for (int i = 0; i < n; ++i) {
-          const float d = (ax.a + ax.b * x.v[i]) - (ay.a + ay.b * y.v[i]);
-          b += double(d) * d;
-        }
+        b = squared_error(n, x, ax, y, ay);
       } else {
-        const float* v = ssim_values(g2_, x, ax, y, ay, ctx.k.c1[c], ctx.k.c2[c], ctx.scratch.data());
+        const float* v = ssim_values(g2_, x, ax, y, ay, ctx.k.c1[c], ctx.k.c2[c], scratch);
         for (int i = 0; i < n; ++i) b += double(v[i]) < bound ? 1.0 : 0.0;
       }
+      miss[size_t(j * 3 + c)] = b;
+    }
+  });
+  // Summed in plane order, whatever thread counted a plane.
+  bad.assign(size_t(parts), 0.0);
+  double total = 0;
+  for (int j = 0; j < np; ++j)
+    for (int c = 0; c < 3; ++c) {
+      const double b = miss[size_t(j * 3 + c)];
       bad[size_t(part_planes > 0 ? j / part_planes : (c == 0 ? 0 : 1))] += b;
       total += b;
     }
@@ -1033,11 +1144,14 @@ int Encoder::worst_part(const std::vector<double>& bad, const std::vector<uint8_
 // part not capped yet is encoded again by encode_part(k, repair_cap). planes_of(entry, factor, out)
 // appends a part's planes; `bright` holds the part code-book's brightness per entry.
 template <class EncodePart, class PlanesOf>
-Encoder::Composite Encoder::compose(const Query& q, int n, int part_planes, const std::vector<float>& bright,
-                                    double bound, double repair_cap, Ctx& ctx, EncodePart encode_part,
-                                    PlanesOf planes_of) {
+Encoder::Composite Encoder::compose(const Query& q, const std::vector<Query>& parts, int part_planes, int level,
+                                    double part_threshold, const std::vector<float>& bright, double bound,
+                                    double repair_cap, Ctx& ctx, EncodePart encode_part, PlanesOf planes_of) {
+  const int n = int(parts.size());
   std::vector<Match> part(static_cast<size_t>(n));
-  for (int k = 0; k < n; ++k) part[size_t(k)] = encode_part(k, kNoCap);
+  const std::vector<Speculation> spec = speculate(parts, level, part_threshold, ctx);
+  for (int k = 0; k < n; ++k)
+    part[size_t(k)] = encode_part(k, kNoCap, spec.empty() ? nullptr : &spec[size_t(k)]);
   Composite c;
   c.index.resize(size_t(n));
   c.scale.resize(size_t(n));
@@ -1057,12 +1171,11 @@ Encoder::Composite Encoder::compose(const Query& q, int n, int part_planes, cons
     const int w = worst_part(bad, capped);
     if (w < 0) break;  // every failing part meets the threshold on its own: rounding
     const CauseScope<Cause> cause(cause_, kRetry);
-    part[size_t(w)] = encode_part(w, repair_cap);
+    part[size_t(w)] = encode_part(w, repair_cap, nullptr);
     capped[size_t(w)] = 1;
     ++ctx.counts.fallbacks;
   }
-  float s = c.norm;
-  evaluate_composite(q, c.planes.data(), int(c.planes.size()), kNoBound, ctx, &c.score, &s, true);
+  c.score = composition_score(q, c.planes, c.norm, ctx);
   return c;
 }
 
@@ -1074,13 +1187,14 @@ Encoder::Match Encoder::encode_p4(const float* texel_in, Ctx& ctx) {
   const Match found = search_composite(q, 4, bound, ctx);
   if (found.index >= 0) return found;
   prime_orders(q, 3, grid_.n_phi_v, nt, ctx);
+  std::vector<Query> parts;
+  for (int p = 0; p < grid_.n_phi_v; ++p) {
+    parts.push_back(sub_query(q, p * nt, nt));
+    parts.back().order_planes(n);
+  }
   const Composite c = compose(
-      q, grid_.n_phi_v, nt, p3_bright_, bound, thresholds_.p4, ctx,
-      [&](int p, double cap) {
-        Query sub = sub_query(q, p * nt, nt);
-        sub.order_planes(n);
-        return encode_p3(sub, ctx, cap);
-      },
+      q, parts, nt, 3, thresholds_.p3, p3_bright_, bound, thresholds_.p4, ctx,
+      [&](int p, double cap, const Speculation* spec) { return encode_p3(parts[size_t(p)], ctx, cap, spec); },
       [&](uint32_t p3, float factor, std::vector<PlaneRef>& out) { p3_planes(p3, factor, out); });
   return {int64_t(store_p4(c.index.data(), c.scale.data())), c.score, c.norm};
 }
@@ -1096,15 +1210,19 @@ uint32_t Encoder::store_p4(const uint32_t* p3, const float* scale) {
   return insert_row(CodebookId::P4, p4_rows_, books_.p4_index, p3, &books_.p4_scale, scale, false);
 }
 
-Encoder::Match Encoder::encode_p3(const Query& q, Ctx& ctx, double cap) {
+Encoder::Match Encoder::encode_p3(const Query& q, Ctx& ctx, double cap, const Speculation* spec) {
   const double t3 = threshold(thresholds_.p3, cap);
   const double bound = bound_for(t3, q.values);
-  const Match found = search_composite(q, 3, bound, ctx);
+  const Match found = spec ? confirm(q, 3, bound, *spec, ctx) : search_composite(q, 3, bound, ctx);
   if (found.index >= 0) return found;
   prime_orders(q, 2, grid_.n_theta_v, 1, ctx);
+  std::vector<Query> parts;
+  for (int t = 0; t < grid_.n_theta_v; ++t) parts.push_back(sub_query(q, t, 1));
   const Composite c = compose(
-      q, grid_.n_theta_v, 1, m_bright_, bound, t3, ctx,
-      [&](int t, double part_cap) { return encode_m(sub_query(q, t, 1), ctx, part_cap); },
+      q, parts, 1, 2, thresholds_.m, m_bright_, bound, t3, ctx,
+      [&](int t, double part_cap, const Speculation* part_spec) {
+        return encode_m(parts[size_t(t)], ctx, part_cap, part_spec);
+      },
       [&](uint32_t m, float factor, std::vector<PlaneRef>& out) {
         out.push_back({books_.m.at(m, 0), books_.m.at(m, 1), factor});
       });
@@ -1112,10 +1230,10 @@ Encoder::Match Encoder::encode_p3(const Query& q, Ctx& ctx, double cap) {
   return {int64_t(e), c.score, c.norm};
 }
 
-Encoder::Match Encoder::encode_m(const Query& q, Ctx& ctx, double cap) {
+Encoder::Match Encoder::encode_m(const Query& q, Ctx& ctx, double cap, const Speculation* spec) {
   const double tm = threshold(thresholds_.m, cap);
   const double bound = bound_for(tm, q.values);
-  const Match found = search_composite(q, 2, bound, ctx);
+  const Match found = spec ? confirm(q, 2, bound, *spec, ctx) : search_composite(q, 2, bound, ctx);
   if (found.index >= 0) return found;
   // Normalize the slice to the fixed brightness, so that P2 and I2 entries are shared across
   // brightness; the parent's scale restores it. Comparisons below stay in absolute units.
@@ -1447,11 +1565,13 @@ Encoder::Query Encoder::texel_query(const std::vector<float>& texel, Ctx& ctx) c
   q.planes = nplanes;
   q.values = size_t(3) * samples;
   q.stats.resize(size_t(2 * 3 * nplanes * n));
-  for (int p = 0; p < nplanes; ++p)
+  q.views.resize(size_t(3 * nplanes));
+  for_each_plane(nplanes, threads_, ctx.scratch, [&](int p, float*) {
     for (int c = 0; c < 3; ++c) {
       float* st = q.stats.data() + size_t(2 * (p * 3 + c) * n);
-      q.views.push_back(make_view(g2_, texel.data() + size_t(c) * samples + size_t(p * n), st, st + n));
+      q.views[size_t(p * 3 + c)] = make_view(g2_, texel.data() + size_t(c) * samples + size_t(p * n), st, st + n);
     }
+  });
   q.order_planes(n);
   return q;
 }

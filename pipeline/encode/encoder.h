@@ -55,6 +55,9 @@ struct EncoderStats {
   uint64_t pruned = 0;       // of which abandoned early
   uint64_t fallbacks = 0;    // new entries re-encoded exactly because their composition missed
   uint64_t laesa_skipped = 0;  // P4 candidates excluded by the MSE pivot bound (of `pruned`)
+  // Composition parts searched ahead of their turn on two threads (Encoder::speculate), of which
+  // the entries inserted meanwhile were scored on top (extended) or the search made again (redone).
+  uint64_t ahead = 0, ahead_extended = 0, ahead_redone = 0;
   // New rows per code-book by cause: a search miss whose composition matched at once, one inserted
   // while re-encoding a composition that missed its parent's threshold (retry), or an exact one.
   CodebookSizes inserted_miss, inserted_retry, inserted_exact;
@@ -176,7 +179,20 @@ class Encoder {
   // composition will search at `level`, found in one pass over the level's signatures.
   void prime_orders(const Query& q, int level, int parts, int part_planes, Ctx& ctx) const;
   Match search_composite_in(const Query& q, int level, const std::vector<uint32_t>& order, double bound,
-                            Ctx& ctx) const;
+                            Ctx& ctx) const {
+    return search_composite_in(q, level, order, bound, ctx, threads_);
+  }
+  Match search_composite_in(const Query& q, int level, const std::vector<uint32_t>& order, double bound, Ctx& ctx,
+                            size_t threads) const;
+  // A composition's first search of each part, made before any part inserts (speculate), and what
+  // the search finds once the parts before it have (confirm): equal to search_composite then.
+  struct Speculation {
+    size_t end = 0;  // entries of the level when it ran
+    std::vector<uint32_t> order;
+    Match best;
+  };
+  std::vector<Speculation> speculate(const std::vector<Query>& parts, int level, double threshold, Ctx& ctx) const;
+  Match confirm(const Query& q, int level, double bound, const Speculation& s, Ctx& ctx) const;
   void check_frozen() const;
   Query texel_query(const std::vector<float>& texel, Ctx& ctx) const;
   P6Entry frozen_entry(const Query& q, const Match& best) const;
@@ -187,8 +203,9 @@ class Encoder {
 
   // cap: the threshold a repair imposes (the parent's); kNoCap (infinity) leaves the level's own.
   Match encode_p4(const float* texel, Ctx& ctx);
-  Match encode_p3(const Query& q, Ctx& ctx, double cap);
-  Match encode_m(const Query& q, Ctx& ctx, double cap);
+  // spec: the part's speculative first search (compose), or null to search here.
+  Match encode_p3(const Query& q, Ctx& ctx, double cap, const Speculation* spec);
+  Match encode_m(const Query& q, Ctx& ctx, double cap, const Speculation* spec);
   uint32_t encode_p2(const Query& q, Ctx& ctx, double cap);
   uint32_t encode_i2(const Query& q, Ctx& ctx, double cap);
   static double threshold(double level, double cap);
@@ -199,9 +216,12 @@ class Encoder {
     float norm = 1;  // the composition's own scale (its brightness over the fixed one)
     double score = 0;
   };
+  // parts: the sub-queries (of part_planes planes), searched at `level` with `part_threshold` first.
   template <class EncodePart, class PlanesOf>
-  Composite compose(const Query& q, int n, int part_planes, const std::vector<float>& bright, double bound,
-                    double repair_cap, Ctx& ctx, EncodePart encode_part, PlanesOf planes_of);
+  Composite compose(const Query& q, const std::vector<Query>& parts, int part_planes, int level, double part_threshold,
+                    const std::vector<float>& bright, double bound, double repair_cap, Ctx& ctx,
+                    EncodePart encode_part, PlanesOf planes_of);
+  double composition_score(const Query& q, const std::vector<PlaneRef>& planes, float s, Ctx& ctx) const;
   bool failing_parts(const Query& q, const PlaneRef* planes, int np, int part_planes, float s, double bound, Ctx& ctx,
                      std::vector<double>& bad) const;
   static int worst_part(const std::vector<double>& bad, const std::vector<uint8_t>& capped);

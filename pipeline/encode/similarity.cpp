@@ -252,15 +252,17 @@ float* ssim_values(const WindowGeometry& g, const ChannelView& x, Affine ax, con
 bool accumulate_channel(const WindowGeometry& g, Metric metric, const ChannelView& x, Affine ax, const ChannelView& y,
                         Affine ay, float c1, float c2, ScoreAccumulator& acc, float* scratch) {
   const int n = g.size();
-  if (metric == Metric::MSE) {
-    double s = 0;
-    for (int i = 0; i < n; ++i) {
-      const float d = (ax.a + ax.b * x.v[i]) - (ay.a + ay.b * y.v[i]);
-      s += double(d) * d;
-    }
-    return acc.add_squared_error(s);
-  }
+  if (metric == Metric::MSE) return acc.add_squared_error(squared_error(n, x, ax, y, ay));
   return acc.add_ssim(ssim_values(g, x, ax, y, ay, c1, c2, scratch), n);
+}
+
+double squared_error(int n, const ChannelView& x, Affine ax, const ChannelView& y, Affine ay) {
+  double s = 0;
+  for (int i = 0; i < n; ++i) {
+    const float d = (ax.a + ax.b * x.v[i]) - (ay.a + ay.b * y.v[i]);
+    s += double(d) * d;
+  }
+  return s;
 }
 
 bool min_ssim_row(const WindowGeometry& g, const ChannelView& x, Affine ax, const ChannelView& y, Affine ay, float c1,

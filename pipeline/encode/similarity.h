@@ -149,6 +149,9 @@ class ScoreAccumulator {
 float* ssim_values(const WindowGeometry& g, const ChannelView& x, Affine ax, const ChannelView& y, Affine ay, float c1,
                    float c2, float* scratch);
 
+// Sum over the n values of one plane-channel of (x absolute - y absolute)^2, in double.
+double squared_error(int n, const ChannelView& x, Affine ax, const ChannelView& y, Affine ay);
+
 // Compares one plane-channel x (absolute = ax) with y (absolute = ay) and adds it to acc.
 // scratch must hold 3 x plane size floats.
 bool accumulate_channel(const WindowGeometry& g, Metric metric, const ChannelView& x, Affine ax, const ChannelView& y,
