@@ -1,0 +1,29 @@
+// probe_ceiling SAMPLE: the parametrization's ceiling of a measured sample -- every texel resampled to
+// the grid of configs/pipeline.json and decoded back at the measured directions, no quantization --
+// scored as `btfvq eval` scores a database (MSSIM of Y, PSNR, CIEDE2000). No encoder setting can
+// beat it; the rate-distortion bench prints the same figure per sample.
+#include <cstdio>
+
+#include <btfvq/error.h>
+#include "bench/baselines/texel_vq.h"
+#include "pipeline/io/sample_io.h"
+#include "pipeline/metrics/metrics.h"
+
+using namespace btfvq;
+
+int main(int argc, char** argv) {
+  if (argc != 2) {
+    std::fprintf(stderr, "usage: probe_ceiling SAMPLE\n");
+    return 2;
+  }
+  try {
+    const MeasuredSample sample = load_sample(argv[1]);
+    const EvaluationReport e =
+        evaluate(sample, baselines::resampled_roundtrip(sample, ParameterDictionary::embedded_default("pipeline")));
+    std::printf("%s\tceiling MSSIM %.4f\tPSNR %.2f dB\tCIEDE2000 %.3f\n", argv[1], e.mssim_y, e.psnr, e.ciede2000_mean);
+    return 0;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "probe_ceiling: %s\n", e.what());
+    return 1;
+  }
+}
