@@ -42,7 +42,17 @@ TEST_CASE("higher quality: every threshold lower or equal, the top ones strictly
     CHECK(double(hi.json()["schedule"]["compose_threshold"]) <= double(lo.json()["schedule"]["compose_threshold"]));
     CHECK(double(hi.json()["schedule"]["compose_gain"]) <= double(lo.json()["schedule"]["compose_gain"]));
     CHECK(double(hi.json()["refine"]["merge_budget"]) < double(lo.json()["refine"]["merge_budget"]));
+    // More texels grow the code-books, and phase 2 relaxes its thresholds less.
+    const nlohmann::json& a = lo.json()["schedule"];
+    const nlohmann::json& b = hi.json()["schedule"];
+    CHECK(double(b["phase1_fraction"]) > double(a["phase1_fraction"]));
+    CHECK(double(b["phase2_fraction"]) > double(a["phase2_fraction"]));
+    CHECK(double(b["relax_factor"]) < double(a["relax_factor"]));
   }
+  // At Q 100 every texel grows the code-books: phase 3 has nothing left to compose from frozen ones.
+  const nlohmann::json top = at(100).json()["schedule"];
+  CHECK(double(top["phase1_fraction"]) + double(top["phase2_fraction"]) == doctest::Approx(1.0));
+  CHECK(double(top["relax_factor"]) == doctest::Approx(1.5));
   // The ends of the scale: three times looser and three times tighter than the default.
   const double p4 = Thresholds::defaults().p4;
   CHECK(Thresholds::from(at(0)).p4 == doctest::Approx(3 * p4));
