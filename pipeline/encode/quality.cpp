@@ -16,22 +16,18 @@ namespace {
 // power law (docs/encoder.md "Quality"), so equal steps of Q are about equal ratios of size.
 double threshold_factor(double q) { return std::pow(3.0, (kDefaultQuality - q) / 50.0); }
 
-// The share of texels that grow the code-books. Phase 3 can only compose P4 entries from the
-// frozen P3 entries, so a material whose texels share little (wool) gains quality only by growing
-// more of them: its MSSIM follows the grown share (wool 64: 0.50 at 6 %, 0.60 at 25 %, 0.83 = its
-// ceiling minus 0.007 with every texel grown; docs/encoder.md "Quality"). Below the default the
-// shares fall as the thresholds rise; above it phase 2 reaches every texel at Q = 100 on a
-// geometric path that starts flat: growing is the slow, sequential part of the encoder, and on a
-// material that shares (leather) tighter thresholds buy about the same MSSIM per byte sooner, so
-// growth takes over only towards the top of the scale.
-double phase1_fraction(double shipped, double q) { return shipped / threshold_factor(q); }
+// Above this quality the share of texels that grow the code-books rises too (docs/encoder.md
+// "Quality"). Phase 3 composes P4 entries only from frozen P3 entries, so a material whose texels
+// share little (wool) gains quality only by growing more of them: wool 64 gives MSSIM 0.50 with
+// the shipped 6 % grown, 0.60 with 25 %, 0.81 (its ceiling 0.836) with every texel. On a material
+// that shares (leather) growth buys MSSIM at far more bytes and time than the thresholds do:
+// leather 128 reached 0.90 at 1:361 with thresholds alone but at 1:163 when the grown share rose
+// from Q 50 on. So the thresholds carry the scale up to here, and growth the last steps to Q 100,
+// where every texel grows.
+constexpr double kGrowthQuality = 90;
 
-double phase2_fraction(double shipped, double phase1, double q) {
-  const double all = 1.0 - phase1;
-  if (q <= kDefaultQuality) return shipped / threshold_factor(q);
-  const double t = (q - kDefaultQuality) / (100.0 - kDefaultQuality);
-  return std::min(all, shipped * std::pow(all / shipped, t * t));
-}
+// 0 at and below kGrowthQuality, 1 at Q = 100.
+double growth(double q) { return std::max(0.0, (q - kGrowthQuality) / (100.0 - kGrowthQuality)); }
 
 }  // namespace
 
@@ -46,12 +42,15 @@ nlohmann::json quality_settings(double q) {
     const double cap = key == "c" ? 1e6 : key == "p1" || key == "i1" ? 0.95 : 2.0;
     out["thresholds"]["ssim"][key] = std::min(cap, value.get<double>() * f);
   }
-  // Growth: more texels grow, and phase 2 relaxes its thresholds less (2.5 at Q 50, 1.5 at Q 100).
+  // Growth, geometric in the shares: phase 1 three times the shipped share at Q 100, phase 2 every
+  // texel phase 1 leaves; phase 2 relaxes its thresholds less (shipped 2.5 down to 1.5).
   const nlohmann::json& schedule = shipped["schedule"];
-  const double p1 = phase1_fraction(schedule["phase1_fraction"].get<double>(), q);
+  const double g = growth(q);
+  const double p1 = schedule["phase1_fraction"].get<double>() * std::pow(3.0, g);
+  const double p2 = schedule["phase2_fraction"].get<double>();
   out["schedule"]["phase1_fraction"] = p1;
-  out["schedule"]["phase2_fraction"] = phase2_fraction(schedule["phase2_fraction"].get<double>(), p1, q);
-  out["schedule"]["relax_factor"] = 1.0 + (schedule["relax_factor"].get<double>() - 1.0) * f;
+  out["schedule"]["phase2_fraction"] = std::min(1.0 - p1, p2 * std::pow((1.0 - p1) / p2, g));
+  out["schedule"]["relax_factor"] = schedule["relax_factor"].get<double>() * (1 - g) + 1.5 * g;
   // Composition: from texels this much farther than the P4 bound, when it gains this much.
   out["schedule"]["compose_threshold"] = std::min(2.0, schedule["compose_threshold"].get<double>() * f);
   out["schedule"]["compose_gain"] = schedule["compose_gain"].get<double>() * f;
