@@ -10,6 +10,7 @@
 #include <btfvq/error.h>
 #include "pipeline/encode/checkpoint.h"
 #include "pipeline/encode/compress.h"
+#include "pipeline/format/database.h"
 #include "pipeline/io/synthetic.h"
 #include "support/test_paths.h"
 
@@ -48,10 +49,12 @@ struct Outcome {
 // compress_database into `out` with checkpoints in `work`; stops (as a kill would, between tiles)
 // once `stop_after` phase-3 tiles of material `stop_material` are done (0: never).
 Outcome compress(const std::vector<MaterialInput>& inputs, const fs::path& out, const fs::path& work,
-                 size_t stop_after = 0, const std::string& stop_material = "") {
+                 size_t stop_after = 0, const std::string& stop_material = "",
+                 const nlohmann::json& overrides = nlohmann::json::object()) {
   Outcome o;
   std::atomic<bool> stop{false};
   CompressOptions options;
+  options.config = pipeline_config(overrides, "test");
   if (!work.empty()) options.checkpoint_folder = work.string();
   options.progress = [&](const CompressProgress& p) {
     if (p.resumed_tile >= 0 && (o.resumed_tile < 0 || p.resumed_tile < o.resumed_tile)) o.resumed_tile = p.resumed_tile;
@@ -87,6 +90,24 @@ TEST_CASE("stopped after two phase-3 tiles, a compression continues from the thi
   CHECK(file_bytes(dir / "db.btfdb") == reference);
   remove_checkpoints(work.string());
   CHECK_FALSE(fs::exists(work));
+}
+
+TEST_CASE("with schedule.compose_p3 phase 3 also appends P3 rows: the resumed compression writes the same bytes") {
+  const fs::path dir = test::scratch_dir("checkpoint-compose-p3");
+  const std::vector<MaterialInput> inputs = {synthetic("leather", 32)};
+  const nlohmann::json on = {{"schedule", {{"compose_p3", true}}}};
+  REQUIRE_FALSE(compress(inputs, dir / "reference.btfdb", {}, 0, "", on).cancelled);
+  REQUIRE_FALSE(compress(inputs, dir / "without.btfdb", {}).cancelled);
+  const Database with = read_database((dir / "reference.btfdb").string());
+  const Database without = read_database((dir / "without.btfdb").string());
+  // The growing phases are the same, so the extra P3 rows are phase 3's.
+  REQUIRE(with.codebooks.p3_index.rows() > without.codebooks.p3_index.rows());
+
+  const fs::path work = dir / "work";
+  REQUIRE(compress(inputs, dir / "db.btfdb", work, 2, "leather", on).cancelled);
+  const Outcome resumed = compress(inputs, dir / "db.btfdb", work, 0, "", on);
+  CHECK(resumed.resumed_tile == 2);
+  CHECK(file_bytes(dir / "db.btfdb") == file_bytes(dir / "reference.btfdb"));
 }
 
 TEST_CASE("a tile record torn by the kill is dropped: that tile is encoded again, the bytes are the same") {

@@ -123,7 +123,7 @@ TEST_CASE("phase 3 gives the same result with one or two threads, and cancellati
   CHECK(tiles == 3);
 }
 
-TEST_CASE("phase-3 composition: new P4 entries only, each closer than the stored entry it replaces, the same on every path and thread count") {
+TEST_CASE("phase-3 composition: new P4 entries (and P3 entries with compose_p3), closer than the stored ones, the same on every path and thread count") {
   // Texels whose first phi_v groups come from one synthetic texel and the rest from another: a new
   // texel is then best made of the groups of stored ones, which is what composition does.
   SyntheticMaterial mat(16, 16);
@@ -204,6 +204,49 @@ TEST_CASE("phase-3 composition: new P4 entries only, each closer than the stored
     CHECK(v.p6_index == r.p6_index);
     CHECK(v.p6_scale == r.p6_scale);
     CHECK(k == base);
+  }
+
+  // compose_p3: groups whose best stored P3 entry misses the P3 threshold may get new P3 entries of
+  // stored M entries. With a tight P3 threshold (most groups miss it), against the same run
+  // without: the same growing phases, only P3 and P4 grow in phase 3, every new P3 row is used by a
+  // new P4 row, the texels come out closer in sum, and thread count and search path do not matter.
+  Thresholds tight = Thresholds::defaults();
+  tight.p3 = 0.01;
+  auto run_p3 = [&](bool compose_p3, int threads, const std::string& search, Codebooks& k) {
+    ScheduleSettings s = sch;
+    s.compose_p3 = compose_p3;
+    s.threads = threads;
+    s.search = search;
+    return run_schedule(k, Dynamic::LDR, 16, 16, source, tight, sim, s);
+  };
+  Codebooks without_p3(mat.grid), with_p3(mat.grid);
+  const ScheduleResult r2 = run_p3(false, 1, "pruned", without_p3);
+  const ScheduleResult r3 = run_p3(true, 1, "pruned", with_p3);
+  CHECK(r3.report.sizes[1] == r2.report.sizes[1]);
+  for (CodebookId id : {CodebookId::P1, CodebookId::C, CodebookId::I1, CodebookId::I2, CodebookId::P2, CodebookId::M})
+    CHECK(r3.report.sizes[2][id] == r3.report.sizes[1][id]);
+  CHECK(r2.report.sizes[2][CodebookId::P3] == r2.report.sizes[1][CodebookId::P3]);
+  const size_t p3_grown = r3.report.sizes[1][CodebookId::P3];
+  REQUIRE(r3.report.sizes[2][CodebookId::P3] > p3_grown);
+  std::vector<char> used(with_p3.p3_index.rows(), 0);
+  for (size_t e = r3.report.sizes[1][CodebookId::P4]; e < with_p3.p4_index.rows(); ++e)
+    for (size_t p = 0; p < with_p3.p4_index.cols(); ++p) used[with_p3.p4_index.at(e, p)] = 1;
+  for (size_t e = p3_grown; e < used.size(); ++e) CHECK(used[e]);
+  double sum2 = 0, sum3 = 0;
+  for (uint32_t id = 0; id < 256; ++id) {
+    sum2 += distance(without_p3, r2, id);
+    sum3 += distance(with_p3, r3, id);
+  }
+  CHECK(sum3 < sum2);
+  MESSAGE("phase-3 P3 rows " << with_p3.p3_index.rows() - p3_grown << ", mean dissimilarity " << sum2 / 256 << " -> "
+                             << sum3 / 256);
+  for (const auto& [threads, search] : variants) {
+    CAPTURE(search);
+    Codebooks k(mat.grid);
+    const ScheduleResult v = run_p3(true, threads, search, k);
+    CHECK(v.p6_index == r3.p6_index);
+    CHECK(v.p6_scale == r3.p6_scale);
+    CHECK(k == with_p3);
   }
 }
 

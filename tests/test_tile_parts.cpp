@@ -109,3 +109,32 @@ TEST_CASE("tile parts from snapshots, merged in tile order, give the local datab
     CHECK_THROWS_AS(check_tile_part((dir / "x").string()), InputError);
   }
 }
+
+TEST_CASE("with schedule.compose_p3 the parts carry the P3 rows their tiles composed: merged, the bytes are the local ones") {
+  const fs::path dir = scratch_dir("tile-parts-p3");
+  const std::vector<MaterialInput> inputs = {synthetic("leather", 32, 3)};
+  CompressOptions local;
+  local.config = pipeline_config({{"schedule", {{"compose_p3", true}}}}, "test");
+  compress_database("", inputs, (dir / "local.btfdb").string(), local);
+
+  CompressOptions remote = local;
+  remote.checkpoint_folder = (dir / "work").string();
+  size_t parts = 0;
+  remote.remote_phase3 = [&](const PhaseThreeWork& w) {
+    const std::string sample = (dir / "sample.raw").string();
+    write_raw_sample(*w.sample, sample);
+    for (size_t merged = w.tiles_done; merged < w.tiles; ++parts) {
+      const fs::path snap = dir / ("wave-" + std::to_string(parts));
+      write_tile_snapshot(w, snap.string());
+      const std::string part = (snap / "part").string();
+      const TilePart p = compute_tile_part(snap.string(), sample, merged, std::min(w.tiles, merged + 2), part);
+      CHECK(check_tile_part(part).sha256 == p.sha256);
+      merge_tile_part(w, part);
+      merged = p.end;
+      w.progress(merged);
+    }
+  };
+  compress_database("", inputs, (dir / "remote.btfdb").string(), remote);
+  CHECK(parts >= 2);
+  CHECK(file_bytes(dir / "remote.btfdb") == file_bytes(dir / "local.btfdb"));
+}

@@ -105,6 +105,25 @@ ScheduleReport report_of(const json& j) {
   return r;
 }
 
+// The rows of a composite code-book (indices and scales) from row `from` on.
+void put_rows(Writer& w, const Table<uint32_t>& index, const Table<float>& scale, size_t from) {
+  const ptrdiff_t at = ptrdiff_t(from * index.cols());
+  w.put(std::vector<uint32_t>(index.data().begin() + at, index.data().end()));
+  w.put(std::vector<float>(scale.data().begin() + at, scale.data().end()));
+}
+
+// Rows read by put_rows' counterpart, appended when they are whole rows.
+bool append_rows(Reader& r, Table<uint32_t>& index, Table<float>& scale) {
+  std::vector<uint32_t> i;
+  std::vector<float> s;
+  r.get(i);
+  r.get(s);
+  if (i.size() != s.size() || i.size() % index.cols()) return false;
+  index.data().insert(index.data().end(), i.begin(), i.end());
+  scale.data().insert(scale.data().end(), s.begin(), s.end());
+  return true;
+}
+
 uint64_t generation_of(const std::string& digest) { return std::stoull(digest.substr(0, 16), nullptr, 16); }
 
 std::string read_all(const std::string& path) { return fs::exists(path) ? read_file(path) : std::string(); }
@@ -176,15 +195,16 @@ void CheckpointFolder::append_tile(size_t tiles_done, const Codebooks& books, co
                                    std::span<const uint32_t> tile) {
   const CodebookSizes now = CodebookSizes::of(books);
   for (CodebookId id : kAllCodebooks)
-    if (id != CodebookId::P4 && now[id] != logged_[id])
+    if (id != CodebookId::P4 && id != CodebookId::P3 && now[id] != logged_[id])
       throw Error("internal", std::string("checkpoint: phase 3 changed code-book ") + codebook_name(id));
   Writer w;
   w.put(generation_);
   w.put(uint64_t(tiles_done));
-  const size_t from = logged_[CodebookId::P4], cols = books.p4_index.cols();
-  w.put(uint64_t(from));
-  w.put(std::vector<uint32_t>(books.p4_index.data().begin() + ptrdiff_t(from * cols), books.p4_index.data().end()));
-  w.put(std::vector<float>(books.p4_scale.data().begin() + ptrdiff_t(from * cols), books.p4_scale.data().end()));
+  const size_t p4_from = logged_[CodebookId::P4], p3_from = logged_[CodebookId::P3];
+  w.put(uint64_t(p4_from));
+  w.put(uint64_t(p3_from));
+  put_rows(w, books.p4_index, books.p4_scale, p4_from);
+  put_rows(w, books.p3_index, books.p3_scale, p3_from);
   std::vector<uint32_t> ids(tile.begin(), tile.end());
   std::vector<int32_t> index;
   std::vector<float> scale, dissimilarity;
@@ -264,7 +284,6 @@ std::optional<SavedWork> CheckpointFolder::load() {
   if (saved.phase3) {
     PhaseThreeState& p = *saved.phase3;
     Codebooks& k = saved.codebooks;
-    const size_t cols = k.p4_index.cols();
     while (good + sizeof(uint64_t) <= log.size()) {
       uint64_t n;
       std::memcpy(&n, log.data() + good, sizeof n);
@@ -275,25 +294,26 @@ std::optional<SavedWork> CheckpointFolder::load() {
       try {
         Reader r(body.data(), body.size(), "checkpoint");
         if (r.get<uint64_t>() != generation_ || r.get<uint64_t>() != p.tiles_done + 1) break;
-        if (r.get<uint64_t>() != k.p4_index.rows()) break;
-        std::vector<uint32_t> p4_index, ids;
-        std::vector<float> p4_scale, scale, dissimilarity;
+        if (r.get<uint64_t>() != k.p4_index.rows() || r.get<uint64_t>() != k.p3_index.rows()) break;
+        Codebooks rows(k.grid);  // the record's new rows, kept apart until the record is whole
+        if (!append_rows(r, rows.p4_index, rows.p4_scale) || !append_rows(r, rows.p3_index, rows.p3_scale)) break;
+        std::vector<uint32_t> ids;
+        std::vector<float> scale, dissimilarity;
         std::vector<int32_t> index;
-        r.get(p4_index);
-        r.get(p4_scale);
         r.get(ids);
         r.get(index);
         r.get(scale);
         r.get(dissimilarity);
         const ScheduleReport report = report_of(json::parse(r.str()));
-        if (p4_index.size() != p4_scale.size() || p4_index.size() % cols || index.size() != ids.size() ||
-            scale.size() != ids.size() || dissimilarity.size() != ids.size())
-          break;
+        if (index.size() != ids.size() || scale.size() != ids.size() || dissimilarity.size() != ids.size()) break;
         bool inside = true;
         for (uint32_t id : ids) inside = inside && id < p.result.p6_index.size();
         if (!inside) break;
-        k.p4_index.data().insert(k.p4_index.data().end(), p4_index.begin(), p4_index.end());
-        k.p4_scale.data().insert(k.p4_scale.data().end(), p4_scale.begin(), p4_scale.end());
+        auto extend = [](auto& to, const auto& from) { to.data().insert(to.data().end(), from.data().begin(), from.data().end()); };
+        extend(k.p4_index, rows.p4_index);
+        extend(k.p4_scale, rows.p4_scale);
+        extend(k.p3_index, rows.p3_index);
+        extend(k.p3_scale, rows.p3_scale);
         for (size_t i = 0; i < ids.size(); ++i) {
           p.result.p6_index[ids[i]] = index[i];
           p.result.p6_scale[ids[i]] = scale[i];

@@ -6,10 +6,11 @@
 //   state.ckpt  the work's fingerprint, the input in progress, the code-books (unquantized, exact),
 //               the materials finished so far and, once phase 3 has started, its PhaseThreeState;
 //               rewritten (atomically) when phase 3 of an input starts and when an input is done;
-//   tiles.log   one record per phase-3 tile after that: the P4 rows the tile composed and the P6
-//               rows it assigned, each record with its own SHA-256 and the state's generation, so
-//               that a record torn by the kill, or left from an older state, is ignored.
-// Phase 3 adds only P4 rows (Encoder::adopt_p4), so a tile record is a few kilobytes.
+//   tiles.log   one record per phase-3 tile after that: the P4 rows the tile composed (and the P3
+//               rows, with schedule.compose_p3) and the P6 rows it assigned, each record with its own
+//               SHA-256 and the state's generation, so that a record torn by the kill, or left from
+//               an older state, is ignored.
+// Phase 3 adds only P4 and P3 rows (Encoder::adopt_p4), so a tile record is a few kilobytes.
 #include <cstddef>
 #include <cstdint>
 #include <optional>

@@ -1592,7 +1592,28 @@ P6Entry Encoder::encode_frozen(const float* texel_in) const {
   return frozen_entry(q, search_composite(q, 4, kNoBound, ctx));
 }
 
-bool Encoder::propose_p4(const float* texel_in, P4Proposal* out) const {
+double Encoder::compose_frozen_p3(const Query& q, Ctx& ctx, uint32_t* m, float* scale) const {
+  const int nt = grid_.n_theta_v;
+  double bright = 0;
+  prime_orders(q, 2, nt, 1, ctx);
+  for (int t = 0; t < nt; ++t) {
+    const Match best = search_composite(sub_query(q, t, 1), 2, kNoBound, ctx);
+    if (best.index < 0) return -1;
+    m[t] = uint32_t(best.index);
+    scale[t] = best.scale;
+    bright += best.scale * m_bright_[size_t(best.index)];
+  }
+  // Stored like a grown P3 entry: scales over the normalized brightness, which the P4 scale restores.
+  const float norm = normalization(bright / nt);
+  bright = 0;
+  for (int t = 0; t < nt; ++t) {
+    scale[t] /= norm;
+    bright += scale[t] * m_bright_[m[t]];
+  }
+  return bright / nt;
+}
+
+bool Encoder::propose_p4(const float* texel_in, P4Proposal* out, bool compose_p3) const {
   check_frozen();
   const std::vector<float> texel = clamped_texel(texel_in, grid_.samples(), dyn_);
   Ctx ctx;
@@ -1600,23 +1621,52 @@ bool Encoder::propose_p4(const float* texel_in, P4Proposal* out) const {
   const int n = g2_.size(), nt = grid_.n_theta_v, np = grid_.n_phi_v;
   out->p3.assign(size_t(np), 0);
   out->scale.assign(size_t(np), 0.0f);
+  out->new_m.clear();
+  out->new_scale.clear();
+  // The planes of group p at factor (a new P3 row's from the proposal itself).
+  auto group_planes = [&](int p, float factor, std::vector<PlaneRef>& planes) {
+    if (!out->is_new(size_t(p))) return p3_planes(out->p3[size_t(p)], factor, planes);
+    const size_t row = size_t(out->p3[size_t(p)] - P4Proposal::kNewP3) * size_t(nt);
+    for (int t = 0; t < nt; ++t) {
+      const uint32_t m = out->new_m[row + size_t(t)];
+      planes.push_back({books_.m.at(m, 0), books_.m.at(m, 1), factor * out->new_scale[row + size_t(t)]});
+    }
+  };
   double bright = 0;
+  std::vector<uint32_t> m(static_cast<size_t>(nt));
+  std::vector<float> ms(static_cast<size_t>(nt));
+  std::vector<PlaneRef> planes;
   prime_orders(q, 3, np, nt, ctx);
   for (int p = 0; p < np; ++p) {
     Query sub = sub_query(q, p * nt, nt);
     sub.order_planes(n);
-    const Match m = search_composite(sub, 3, kNoBound, ctx);
-    if (m.index < 0) return false;
-    out->p3[size_t(p)] = uint32_t(m.index);
-    out->scale[size_t(p)] = m.scale;
-    bright += m.scale * p3_bright_[size_t(m.index)];
+    const Match best = search_composite(sub, 3, kNoBound, ctx);
+    if (best.index < 0) return false;
+    out->p3[size_t(p)] = uint32_t(best.index);
+    out->scale[size_t(p)] = best.scale;
+    double group_bright = p3_bright_[size_t(best.index)];
+    if (compose_p3 && best.score < bound_for(thresholds_.p3, sub.values)) {
+      const double b = compose_frozen_p3(sub, ctx, m.data(), ms.data());
+      planes.clear();
+      for (int t = 0; t < nt; ++t) planes.push_back({books_.m.at(m[size_t(t)], 0), books_.m.at(m[size_t(t)], 1), ms[size_t(t)]});
+      double score;
+      float s = 1;
+      if (b >= 0 && evaluate_composite(sub, planes.data(), nt, kNoBound, ctx, &score, &s) && score > best.score) {
+        out->p3[size_t(p)] = P4Proposal::kNewP3 + uint32_t(out->new_m.size() / size_t(nt));
+        out->scale[size_t(p)] = s;
+        out->new_m.insert(out->new_m.end(), m.begin(), m.end());
+        out->new_scale.insert(out->new_scale.end(), ms.begin(), ms.end());
+        group_bright = b;
+      }
+    }
+    bright += out->scale[size_t(p)] * group_bright;
   }
   // Stored like a grown P4 entry: normalized scales, the brightness in the texel's P6 scale.
   const float norm = normalization(bright / np);
-  std::vector<PlaneRef> planes;
+  planes.clear();
   for (int p = 0; p < np; ++p) {
     out->scale[size_t(p)] /= norm;
-    p3_planes(out->p3[size_t(p)], out->scale[size_t(p)], planes);
+    group_planes(p, out->scale[size_t(p)], planes);
   }
   double score;
   float s = 1;
@@ -1628,8 +1678,16 @@ bool Encoder::propose_p4(const float* texel_in, P4Proposal* out) const {
 }
 
 P6Entry Encoder::adopt_p4(const P4Proposal& proposal) {
+  std::vector<uint32_t> p3 = proposal.p3;
+  const size_t nt = size_t(grid_.n_theta_v);
+  for (size_t p = 0; p < p3.size(); ++p)
+    if (proposal.is_new(p)) {
+      const size_t row = size_t(p3[p] - P4Proposal::kNewP3) * nt;
+      p3[p] = insert_row(CodebookId::P3, p3_rows_, books_.p3_index, proposal.new_m.data() + row, &books_.p3_scale,
+                         proposal.new_scale.data() + row, false);
+    }
   P6Entry r = proposal.entry;
-  r.index = store_p4(proposal.p3.data(), proposal.scale.data());
+  r.index = store_p4(p3.data(), proposal.scale.data());
   return r;
 }
 

@@ -82,9 +82,15 @@ float normalized_brightness(Dynamic dyn);
 
 // A phase-3 texel's own P4 entry before it is stored (Encoder::propose_p4).
 struct P4Proposal {
+  // A group's P3 index at or above kNewP3 names new P3 row (index - kNewP3) of `new_m`/`new_scale`
+  // (n_theta_v M indices and scales each): composed from the frozen M entries, stored by adopt_p4.
+  static constexpr uint32_t kNewP3 = 0x80000000u;
   std::vector<uint32_t> p3;  // per phi_v group
   std::vector<float> scale;
+  std::vector<uint32_t> new_m;
+  std::vector<float> new_scale;
   P6Entry entry;             // index unset until adopted
+  bool is_new(size_t group) const { return p3[group] >= kNewP3; }
 };
 
 class Encoder {
@@ -108,11 +114,14 @@ class Encoder {
   P6Entry encode_frozen(const float* texel) const;
 
   // Phase-3 composition, in two steps so that the search runs in parallel and the code-books grow in
-  // texel order: a P4 entry made of the best stored P3 entry of every phi_v group (nothing below P4
-  // is added), with the texel's scale and dissimilarity; false if a group has no candidate.
-  // Thread-safe (const), as it reads only P3 and below, which phase 3 never changes.
-  bool propose_p4(const float* texel, P4Proposal* out) const;
-  // Stores the proposal's entry (or finds it stored) and returns the texel's P6 entry.
+  // texel order: a P4 entry made of the best stored P3 entry of every phi_v group, with the texel's
+  // scale and dissimilarity; false if a group has no candidate. With compose_p3, a group whose best
+  // P3 entry misses the P3 threshold gets a new P3 entry of the best stored M entry of each theta_v
+  // slice when that fits it better (nothing below P3 is added). Thread-safe (const): it reads P3 and
+  // below, which only adopt_p4 changes.
+  bool propose_p4(const float* texel, P4Proposal* out, bool compose_p3 = false) const;
+  // Stores the proposal's new P3 rows and its P4 row (or finds them stored) and returns the texel's
+  // P6 entry.
   P6Entry adopt_p4(const P4Proposal& proposal);
 
   // The pieces of encode_frozen() for the batched search (pipeline/encode/frozen_search.h):
@@ -157,6 +166,9 @@ class Encoder {
   void cache_p4(uint32_t e);
   // The planes of P3 entry p3 times factor, appended to out (what a P4 entry's group decodes to).
   void p3_planes(uint32_t p3, float factor, std::vector<PlaneRef>& out) const;
+  // propose_p4's new P3 entry for group query q: the best frozen M entry per theta_v slice, at the
+  // normalized brightness (m and scale: n_theta_v each); its brightness, or a negative value if M is empty.
+  double compose_frozen_p3(const Query& q, Ctx& ctx, uint32_t* m, float* scale) const;
   // A P4 row by content: the stored one if it exists, else appended (cached, counted).
   uint32_t store_p4(const uint32_t* p3, const float* scale);
 

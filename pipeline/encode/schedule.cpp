@@ -25,6 +25,7 @@ ScheduleSettings ScheduleSettings::from(const ParameterDictionary& d) {
   s.search = d.string("schedule.search");
   s.compose_threshold = d.number("schedule.compose_threshold", 0.0, 2.0);
   s.compose_gain = d.number("schedule.compose_gain", 0.0, 2.0);
+  s.compose_p3 = d.boolean("schedule.compose_p3");
   s.refine = RefineSettings::from(d);
   if (s.search != "auto" && s.search != "pruned" && s.search != "batched" && s.search != "batched-reference")
     throw ConfigError(d.origin() + ": 'schedule.search' = '" + s.search +
@@ -245,7 +246,7 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
       std::vector<P4Proposal> proposals(todo.size());
       std::vector<char> proposed(todo.size());
       parallel_for(0, todo.size(), [&](size_t k) {
-        proposed[k] = encoder->propose_p4(texels + todo[k] * 3 * samples, &proposals[k]);
+        proposed[k] = encoder->propose_p4(texels + todo[k] * 3 * samples, &proposals[k], schedule.compose_p3);
       }, ParallelOptions{size_t(schedule.threads), 1});
       const auto t_adopt = std::chrono::steady_clock::now();
       result.report.propose_seconds += std::chrono::duration<double>(t_adopt - t_propose).count();
@@ -256,11 +257,13 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
         P6Entry& e = entries[todo[k]];
         // The entries adopted earlier in this tile, which the batch did not see: those made of the
         // same P3 entries in at least half of the groups (a texel close to an adopted entry picks
-        // mostly its P3 entries too); scoring every one would cost adopted^2 per tile.
+        // mostly its P3 entries too); scoring every one would cost adopted^2 per tile. New P3 rows
+        // (numbered within their proposal) count as different.
         std::vector<uint32_t> near;
         for (const auto& [entry, from] : added) {
           size_t same = 0;
-          for (size_t p = 0; p < proposals[k].p3.size(); ++p) same += proposals[from].p3[p] == proposals[k].p3[p];
+          for (size_t p = 0; p < proposals[k].p3.size(); ++p)
+            same += !proposals[k].is_new(p) && proposals[from].p3[p] == proposals[k].p3[p];
           if (2 * same >= proposals[k].p3.size()) near.push_back(entry);
         }
         if (!near.empty()) {

@@ -117,7 +117,7 @@ TilePart check_tile_part(const std::string& out) {
     if (sizeof n > bytes.size() - at) throw CorruptError("the tile part " + out + ": a torn record");
     std::memcpy(&n, bytes.data() + at, sizeof n);
     at += sizeof n;
-    if (n < 3 * sizeof(uint64_t) || n > bytes.size() - at || kDigest > bytes.size() - at - n)
+    if (n < 4 * sizeof(uint64_t) || n > bytes.size() - at || kDigest > bytes.size() - at - n)
       throw CorruptError("the tile part " + out + ": a torn record");
     const std::string body = bytes.substr(at, size_t(n));
     if (sha256_hex(body) != bytes.substr(at + size_t(n), kDigest))

@@ -1,8 +1,10 @@
 #pragma once
 // Phase 3 on other machines (`btfvq tile`, the server's Slurm executor; docs/cluster.md).
 //
-// Phase-3 tiles are not independent: a tile's composition appends P4 rows that the search of every
-// later tile sees (Encoder::adopt_p4, FrozenSearch::sync). A tile is a pure function of (the
+// Phase-3 tiles are not independent: a tile's composition appends P4 rows (and, with
+// schedule.compose_p3, the P3 rows they are made of) that the search of every later tile sees
+// (Encoder::adopt_p4, FrozenSearch::sync). A new P3 row always comes with a new P4 row, so the
+// P4 row count alone tells whether a tile appended anything. A tile is a pure function of (the
 // code-books as of its start, its texels), and those code-books differ from the grown version
 // exactly by the P4 rows earlier tiles appended. So a range of tiles computed elsewhere from a
 // snapshot of the checkpoint (state.ckpt + tiles.log after T tiles) is the sequential result when
