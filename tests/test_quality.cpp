@@ -51,6 +51,7 @@ TEST_CASE("higher quality: every threshold lower or equal, the top ones strictly
       CAPTURE(k);
       if (q + 2.5 <= 90) CHECK(b[k] == shipped[k]);
     }
+    CHECK(b["compose_p3"] == (q + 2.5 > 90));
     if (q >= 90) {
       CHECK(double(b["phase1_fraction"]) > double(a["phase1_fraction"]));
       CHECK(double(b["phase2_fraction"]) > double(a["phase2_fraction"]));

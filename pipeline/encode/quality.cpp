@@ -54,6 +54,10 @@ nlohmann::json quality_settings(double q) {
   // Composition: from texels this much farther than the P4 bound, when it gains this much.
   out["schedule"]["compose_threshold"] = std::min(2.0, schedule["compose_threshold"].get<double>() * f);
   out["schedule"]["compose_gain"] = schedule["compose_gain"].get<double>() * f;
+  // Above kGrowthQuality phase 3 may also compose new P3 entries of stored M entries: on leather 64
+  // it bought more quality per byte than growth (Q 90 with it 0.939 at 1:90, Q 95 without it 0.930
+  // at 1:40, Q 95 with it 0.961 at 1:30; docs/encoder.md "Quality").
+  out["schedule"]["compose_p3"] = q > kGrowthQuality;
   // The share of the material's error the refinement's merges may add: a higher quality merges less.
   out["refine"]["merge_budget"] = shipped["refine"]["merge_budget"].get<double>() * f;
   return out;
