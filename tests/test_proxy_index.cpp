@@ -53,6 +53,10 @@ TEST_CASE("probing every list gives the exact nearest neighbours, nearest first"
     index.nearest(q.data() + i * dim, 16, 1 << 20, got);
     CHECK(got == brute_force(v, dim, q.data() + i * dim, 16));
   }
+  // More wanted than stored: every entry, in order.
+  index.nearest(q.data(), 1000, 1 << 20, got);
+  CHECK(got == brute_force(v, dim, q.data(), 1000));
+  CHECK(got.size() == 250);
 }
 
 TEST_CASE("few probes still find the neighbours of a query inside a cluster") {

@@ -489,22 +489,12 @@ double Encoder::bound_for(double threshold, size_t values) const {
 
 void Encoder::planes_of_p3(uint32_t e, std::vector<PlaneRef>& out) const {
   out.clear();
-  for (int t = 0; t < grid_.n_theta_v; ++t) {
-    const uint32_t m = books_.p3_index.at(e, size_t(t));
-    out.push_back({books_.m.at(m, 0), books_.m.at(m, 1), books_.p3_scale.at(e, size_t(t))});
-  }
+  p3_planes(e, 1.0f, out);
 }
 
 void Encoder::planes_of_p4(uint32_t e, std::vector<PlaneRef>& out) const {
   out.clear();
-  for (int p = 0; p < grid_.n_phi_v; ++p) {
-    const uint32_t p3 = books_.p4_index.at(e, size_t(p));
-    const float s4 = books_.p4_scale.at(e, size_t(p));
-    for (int t = 0; t < grid_.n_theta_v; ++t) {
-      const uint32_t m = books_.p3_index.at(p3, size_t(t));
-      out.push_back({books_.m.at(m, 0), books_.m.at(m, 1), s4 * books_.p3_scale.at(p3, size_t(t))});
-    }
-  }
+  for (int p = 0; p < grid_.n_phi_v; ++p) p3_planes(books_.p4_index.at(e, size_t(p)), books_.p4_scale.at(e, size_t(p)), out);
 }
 
 bool Encoder::evaluate_composite(const Query& q, const PlaneRef* planes, int np, double bound, Ctx& ctx, double* score,
@@ -1199,11 +1189,13 @@ Encoder::Match Encoder::encode_p4(const float* texel_in, Ctx& ctx) {
   return {int64_t(store_p4(c.index.data(), c.scale.data())), c.score, c.norm};
 }
 
+void Encoder::m_planes(const uint32_t* m, const float* scale, float factor, std::vector<PlaneRef>& out) const {
+  for (int t = 0; t < grid_.n_theta_v; ++t)
+    out.push_back({books_.m.at(m[t], 0), books_.m.at(m[t], 1), factor * scale[t]});
+}
+
 void Encoder::p3_planes(uint32_t p3, float factor, std::vector<PlaneRef>& out) const {
-  for (int t = 0; t < grid_.n_theta_v; ++t) {
-    const uint32_t m = books_.p3_index.at(p3, size_t(t));
-    out.push_back({books_.m.at(m, 0), books_.m.at(m, 1), factor * books_.p3_scale.at(p3, size_t(t))});
-  }
+  m_planes(books_.p3_index.row(p3), books_.p3_scale.row(p3), factor, out);
 }
 
 uint32_t Encoder::store_p4(const uint32_t* p3, const float* scale) {
@@ -1627,10 +1619,7 @@ bool Encoder::propose_p4(const float* texel_in, P4Proposal* out, bool compose_p3
   auto group_planes = [&](int p, float factor, std::vector<PlaneRef>& planes) {
     if (!out->is_new(size_t(p))) return p3_planes(out->p3[size_t(p)], factor, planes);
     const size_t row = size_t(out->p3[size_t(p)] - P4Proposal::kNewP3) * size_t(nt);
-    for (int t = 0; t < nt; ++t) {
-      const uint32_t m = out->new_m[row + size_t(t)];
-      planes.push_back({books_.m.at(m, 0), books_.m.at(m, 1), factor * out->new_scale[row + size_t(t)]});
-    }
+    m_planes(out->new_m.data() + row, out->new_scale.data() + row, factor, planes);
   };
   double bright = 0;
   std::vector<uint32_t> m(static_cast<size_t>(nt));
@@ -1648,7 +1637,7 @@ bool Encoder::propose_p4(const float* texel_in, P4Proposal* out, bool compose_p3
     if (compose_p3 && best.score < bound_for(thresholds_.p3, sub.values)) {
       const double b = compose_frozen_p3(sub, ctx, m.data(), ms.data());
       planes.clear();
-      for (int t = 0; t < nt; ++t) planes.push_back({books_.m.at(m[size_t(t)], 0), books_.m.at(m[size_t(t)], 1), ms[size_t(t)]});
+      m_planes(m.data(), ms.data(), 1.0f, planes);
       double score;
       float s = 1;
       if (b >= 0 && evaluate_composite(sub, planes.data(), nt, kNoBound, ctx, &score, &s) && score > best.score) {

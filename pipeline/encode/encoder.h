@@ -164,6 +164,8 @@ class Encoder {
   void cache_m(uint32_t e);
   void cache_p3(uint32_t e);
   void cache_p4(uint32_t e);
+  // The planes of a P3 row of M entries m with scales `scale` (n_theta_v each) times factor, appended to out.
+  void m_planes(const uint32_t* m, const float* scale, float factor, std::vector<PlaneRef>& out) const;
   // The planes of P3 entry p3 times factor, appended to out (what a P4 entry's group decodes to).
   void p3_planes(uint32_t p3, float factor, std::vector<PlaneRef>& out) const;
   // propose_p4's new P3 entry for group query q: the best frozen M entry per theta_v slice, at the

@@ -5,6 +5,7 @@
 #include <limits>
 
 #include <btfvq/error.h>
+#include "pipeline/util/bounded_heap.h"
 
 namespace btfvq {
 
@@ -20,6 +21,12 @@ struct Ranked {
   bool operator<(const Ranked& o) const { return d < o.d || (d == o.d && id < o.id); }
 };
 
+// Offers (d, id) to the k nearest kept in heap; the first test alone turns most offers away.
+void keep(std::vector<Ranked>& heap, size_t k, float d, uint32_t id) {
+  if (heap.size() == k && d > heap.front().d) return;
+  keep_smallest(heap, k, Ranked{d, id});
+}
+
 }  // namespace
 
 ProxyIndex::ProxyIndex(int dim, float radius) : dim_(dim), radius_(radius) {
@@ -27,13 +34,27 @@ ProxyIndex::ProxyIndex(int dim, float radius) : dim_(dim), radius_(radius) {
     throw InputError("proxy index: dimension and radius must be positive");
 }
 
-float ProxyIndex::distance2(const float* a, const float* b) const {
-  float s = 0;
-  for (int i = 0; i < dim_; ++i) {
-    const float d = a[i] - b[i];
-    s += d * d;
+void ProxyIndex::Lanes::append(const float* x, int dim) {
+  if (n % kLanes == 0) v.resize(v.size() + size_t(dim) * kLanes, 0.0f);
+  float* block = v.data() + (n / kLanes) * size_t(dim) * kLanes;
+  for (int i = 0; i < dim; ++i) block[size_t(i) * kLanes + n % kLanes] = x[i];
+  ++n;
+}
+
+void ProxyIndex::Lanes::distances(const float* q, int dim, float* out) const {
+  for (size_t b = 0; b * kLanes < n; ++b) {
+    const float* block = v.data() + b * size_t(dim) * kLanes;
+    float s[kLanes] = {};
+    for (int i = 0; i < dim; ++i) {
+      const float qi = q[i];
+      const float* y = block + size_t(i) * kLanes;
+      for (size_t j = 0; j < kLanes; ++j) {
+        const float d = qi - y[j];
+        s[j] += d * d;
+      }
+    }
+    std::copy(s, s + kLanes, out + b * kLanes);
   }
-  return s;
 }
 
 void ProxyIndex::insert(const float* v) {
@@ -45,22 +66,24 @@ void ProxyIndex::insert(const float* v) {
 
 void ProxyIndex::assign(uint32_t id) {
   const float* v = vectors_.data() + size_t(id) * size_t(dim_);
+  thread_local std::vector<float> d;
+  d.resize((leaders_.size() + kLanes - 1) / kLanes * kLanes);
+  leader_lanes_.distances(v, dim_, d.data());
   float best = std::numeric_limits<float>::infinity();
   size_t at = 0;
-  for (size_t j = 0; j < leaders_.size(); ++j) {
-    const float d = distance2(v, vectors_.data() + size_t(leaders_[j]) * size_t(dim_));
-    if (d < best) {
-      best = d;
+  for (size_t j = 0; j < leaders_.size(); ++j)
+    if (d[j] < best) {
+      best = d[j];
       at = j;
     }
-  }
   if (leaders_.empty() || best > radius_ * radius_) {
     leaders_.push_back(id);
+    leader_lanes_.append(v, dim_);
     lists_.push_back({id});
-    list_vectors_.emplace_back(v, v + dim_);
+    list_lanes_.emplace_back().append(v, dim_);
   } else {
     lists_[at].push_back(id);
-    list_vectors_[at].insert(list_vectors_[at].end(), v, v + dim_);
+    list_lanes_[at].append(v, dim_);
   }
 }
 
@@ -68,8 +91,9 @@ void ProxyIndex::rebuild() {
   while (leaders_.size() > leader_budget(size())) {
     radius_ *= 2;
     leaders_.clear();
+    leader_lanes_ = {};
     lists_.clear();
-    list_vectors_.clear();
+    list_lanes_.clear();
     for (uint32_t id = 0; id < size(); ++id) assign(id);
   }
 }
@@ -77,24 +101,25 @@ void ProxyIndex::rebuild() {
 void ProxyIndex::nearest(const float* q, int k, int probes, std::vector<uint32_t>& out) const {
   out.clear();
   if (k <= 0 || leaders_.empty()) return;
-  thread_local std::vector<Ranked> ranked;
-  ranked.clear();
-  for (size_t j = 0; j < leaders_.size(); ++j)
-    ranked.push_back({distance2(q, vectors_.data() + size_t(leaders_[j]) * size_t(dim_)), uint32_t(j)});
-  const size_t p = std::min(ranked.size(), size_t(std::max(1, probes)));
-  std::partial_sort(ranked.begin(), ranked.begin() + std::ptrdiff_t(p), ranked.end());
-  thread_local std::vector<Ranked> members;
-  members.clear();
+  thread_local std::vector<float> d;
+  thread_local std::vector<Ranked> near_leaders, heap;
+  d.resize((leaders_.size() + kLanes - 1) / kLanes * kLanes);
+  leader_lanes_.distances(q, dim_, d.data());
+  near_leaders.clear();
+  const size_t p = std::min(leaders_.size(), size_t(std::max(1, probes)));
+  for (size_t j = 0; j < leaders_.size(); ++j) keep(near_leaders, p, d[j], uint32_t(j));
+  std::sort(near_leaders.begin(), near_leaders.end());  // nearest list first: the heap tightens soonest
   // Every member of the probed lists: a scan budget spent in insertion order never returned the
   // entries past a long list's first few hundred, and their rows were inserted again.
-  for (size_t j = 0; j < p; ++j) {
-    const std::vector<uint32_t>& ids = lists_[ranked[j].id];
-    const float* v = list_vectors_[ranked[j].id].data();
-    for (size_t i = 0; i < ids.size(); ++i) members.push_back({distance2(q, v + i * size_t(dim_)), ids[i]});
+  heap.clear();
+  for (const Ranked& leader : near_leaders) {
+    const std::vector<uint32_t>& ids = lists_[leader.id];
+    d.resize((ids.size() + kLanes - 1) / kLanes * kLanes);
+    list_lanes_[leader.id].distances(q, dim_, d.data());
+    for (size_t i = 0; i < ids.size(); ++i) keep(heap, size_t(k), d[i], ids[i]);
   }
-  const size_t n = std::min(members.size(), size_t(k));
-  std::partial_sort(members.begin(), members.begin() + std::ptrdiff_t(n), members.end());
-  for (size_t i = 0; i < n; ++i) out.push_back(members[i].id);
+  std::sort(heap.begin(), heap.end());
+  for (const Ranked& r : heap) out.push_back(r.id);
 }
 
 }  // namespace btfvq

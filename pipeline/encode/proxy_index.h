@@ -32,7 +32,17 @@ class ProxyIndex {
   void nearest(const float* q, int k, int probes, std::vector<uint32_t>& out) const;
 
  private:
-  float distance2(const float* a, const float* b) const;
+  // Vectors in blocks of kLanes, value-major (value i of entry e at block e / kLanes, slot
+  // i * kLanes + e % kLanes; unused slots 0), so that a scan computes kLanes squared distances at
+  // once. Each distance is still summed in value order: the same number as one vector at a time.
+  static constexpr size_t kLanes = 8;
+  struct Lanes {
+    std::vector<float> v;
+    size_t n = 0;
+    void append(const float* x, int dim);
+    // out[e] = |q - entry e|^2 for every entry (out holds a multiple of kLanes).
+    void distances(const float* q, int dim, float* out) const;
+  };
   void assign(uint32_t id);
   void rebuild();
 
@@ -40,8 +50,9 @@ class ProxyIndex {
   float radius_ = 0;
   std::vector<float> vectors_;                // size() x dim
   std::vector<uint32_t> leaders_;             // ids of the leaders
+  Lanes leader_lanes_;                        // their vectors
   std::vector<std::vector<uint32_t>> lists_;  // per leader: ids of its members (itself first)
-  std::vector<std::vector<float>> list_vectors_;  // per leader: its members' vectors, contiguous
+  std::vector<Lanes> list_lanes_;             // per leader: its members' vectors
 };
 
 }  // namespace btfvq

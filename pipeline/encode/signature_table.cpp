@@ -4,6 +4,7 @@
 #include <cmath>
 #include <numeric>
 
+#include "pipeline/util/bounded_heap.h"
 #include "pipeline/util/parallel.h"
 
 namespace btfvq {
@@ -131,15 +132,7 @@ void SignatureTable::Blocks::select(const float* const* qs, const double* qq, si
           const size_t e = b * kLanes + size_t(__builtin_ctz(pass));
           if (e < first || e >= last) continue;
           const size_t j = e - b * kLanes;
-          const Neighbour c{float(distance_from(qq[q], a[j], yy[e])), uint32_t(e)};
-          if (heap.size() < k) {
-            heap.push_back(c);
-            std::push_heap(heap.begin(), heap.end());
-          } else if (c < heap.front()) {
-            std::pop_heap(heap.begin(), heap.end());
-            heap.back() = c;
-            std::push_heap(heap.begin(), heap.end());
-          }
+          keep_smallest(heap, k, Neighbour{float(distance_from(qq[q], a[j], yy[e])), uint32_t(e)});
         }
       }
     }
