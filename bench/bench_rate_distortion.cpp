@@ -8,6 +8,10 @@
 // Each sample's results are kept in bench/results/rd/<sample>.json with the run that measured them
 // (commit, date, arguments), and the section is assembled from every kept sample: the 256 x 256
 // samples, an hour each here, can be measured by runs of their own without losing the others.
+// While a sample runs, every scored point is also kept in bench/results/rd/<sample>.partial (with
+// the commit and arguments): a run of the same clean commit and arguments that finds it (after a
+// kill, or a session that ended) scores only the points still missing; the file goes when the
+// sample's table is kept.
 //
 // Own options (kRdOptions below, `bench_rate_distortion --help`), also read from the environment
 // variable BTFVQ_RD_ARGS so that `BTFVQ_RD_ARGS="--presets wood --size 64" make bench` reaches only
@@ -19,6 +23,7 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <limits>
 #include <map>
 #include <optional>
 #include <sstream>
@@ -164,6 +169,81 @@ struct Point {
   uint64_t bytes = 0;
   EvaluationReport e;
   std::optional<double> btf_cielab;  // its mean, when the column is on
+  int size = 0;                      // a baseline's size parameter (its components or entries)
+};
+
+nlohmann::json to_json(const Point& p) {
+  nlohmann::json j = {{"method", p.method}, {"setting", p.setting}, {"size", p.size}, {"ratio", p.ratio},
+                      {"bytes", p.bytes}, {"seconds", p.seconds}, {"mssim_y", p.e.mssim_y}, {"mssim_cb", p.e.mssim_cb},
+                      {"mssim_cr", p.e.mssim_cr}, {"ciede2000_mean", p.e.ciede2000_mean},
+                      {"ciede2000_p95", p.e.ciede2000_p95}, {"images", p.e.images}};
+  // JSON has no infinity: an identical decoding's PSNR is kept as null.
+  j["psnr"] = std::isfinite(p.e.psnr) ? nlohmann::json(p.e.psnr) : nlohmann::json(nullptr);
+  if (p.btf_cielab) j["btf_cielab"] = *p.btf_cielab;
+  return j;
+}
+
+Point point_from_json(const nlohmann::json& j) {
+  Point p;
+  p.method = j.at("method");
+  p.setting = j.at("setting");
+  p.size = j.at("size");
+  p.ratio = j.at("ratio");
+  p.bytes = j.at("bytes");
+  p.seconds = j.at("seconds");
+  p.e.mssim_y = j.at("mssim_y");
+  p.e.mssim_cb = j.at("mssim_cb");
+  p.e.mssim_cr = j.at("mssim_cr");
+  p.e.psnr = j.at("psnr").is_null() ? std::numeric_limits<double>::infinity() : j.at("psnr").get<double>();
+  p.e.ciede2000_mean = j.at("ciede2000_mean");
+  p.e.ciede2000_p95 = j.at("ciede2000_p95");
+  p.e.images = j.at("images");
+  if (j.contains("btf_cielab")) p.btf_cielab = j.at("btf_cielab").get<double>();
+  return p;
+}
+
+// The points of one sample scored so far, kept on disk after each one so that an interrupted run of
+// the same clean commit and arguments picks them up instead of scoring them again.
+class Journal {
+ public:
+  Journal(std::filesystem::path path, std::string run) : path_(std::move(path)), run_(std::move(run)) {
+    // A dirty tree or an unknown commit may be other code than the points were scored with.
+    resumable_ = run_.find("(dirty)") == std::string::npos && run_.rfind("unknown", 0) != 0;
+    if (!resumable_ || !std::filesystem::exists(path_)) return;
+    try {
+      const auto j = nlohmann::json::parse(std::ifstream(path_));
+      if (j.at("run") != run_) return;
+      for (const auto& p : j.at("points")) points_.push_back(point_from_json(p));
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "  ignoring %s: %s\n", path_.string().c_str(), e.what());
+      points_.clear();
+    }
+  }
+  const Point* find(const std::string& method, const std::string& setting) const {
+    for (const auto& p : points_)
+      if (p.method == method && p.setting == setting) return &p;
+    return nullptr;
+  }
+  const Point* find(const std::string& method, int size) const {
+    for (const auto& p : points_)
+      if (p.method == method && p.size == size) return &p;
+    return nullptr;
+  }
+  void add(const Point& p) {
+    points_.push_back(p);
+    if (!resumable_) return;
+    std::filesystem::create_directories(path_.parent_path());
+    nlohmann::json j = {{"run", run_}, {"points", nlohmann::json::array()}};
+    for (const auto& q : points_) j["points"].push_back(to_json(q));
+    write_file_atomically(path_.string(), j.dump(1));
+  }
+  void finish() const { std::filesystem::remove(path_); }
+
+ private:
+  std::filesystem::path path_;
+  std::string run_;
+  bool resumable_ = false;
+  std::vector<Point> points_;
 };
 
 // Every method's decoded sample is scored by the same calls: the metrics of eval, and BTF-CIELab at
@@ -180,6 +260,13 @@ ParameterDictionary btfvq_config(double quality, double phase2) {
   return pipeline_config(with_quality(quality, overrides), "rate-distortion bench");
 }
 
+std::string btfvq_setting(double quality, double phase2) {
+  char s[64];
+  if (phase2 >= 0) std::snprintf(s, sizeof s, "Q %.0f, phase2_fraction %.2g", quality, phase2);
+  else std::snprintf(s, sizeof s, "Q %.0f", quality);
+  return s;
+}
+
 Point run_btfvq(const MeasuredSample& sample, double quality, double phase2, bool with_btf_cielab,
                 const std::filesystem::path& scratch) {
   bench::Stopwatch sw;
@@ -193,10 +280,7 @@ Point run_btfvq(const MeasuredSample& sample, double quality, double phase2, boo
   Point p;
   p.seconds = sw.seconds();
   p.method = "btfvq";
-  char s[64];
-  if (phase2 >= 0) std::snprintf(s, sizeof s, "Q %.0f, phase2_fraction %.2g", quality, phase2);
-  else std::snprintf(s, sizeof s, "Q %.0f", quality);
-  p.setting = s;
+  p.setting = btfvq_setting(quality, phase2);
   p.bytes = std::filesystem::file_size(path);
   score(p, sample, reconstruct_sample(read_database(path.string()), "m", sample), with_btf_cielab);
   std::filesystem::remove(path);
@@ -207,6 +291,7 @@ Point from_baseline(const MeasuredSample& sample, BaselinePoint& b, bool with_bt
   Point p;
   p.method = b.method;
   p.setting = b.setting;
+  p.size = b.size;
   p.bytes = b.bytes;
   p.seconds = b.seconds;
   score(p, sample, b.decoded, with_btf_cielab);
@@ -484,27 +569,56 @@ int main(int argc, char** argv) {
     std::filesystem::remove(zip);
     const bench::Stopwatch clock;
     std::vector<Point> points;
+    const char* commit = std::getenv("BTFVQ_BENCH_COMMIT");
+    Journal journal(sample_store(args, quick) / (key + ".partial"),
+                    std::string(commit ? commit : "unknown") + (rd.btf_cielab ? ", btf-cielab" : ""));
     const double raw = double(sample.raw_bytes());
+    auto report = [&](const Point& p, bool resumed) {
+      if (resumed) std::fprintf(stderr, "  %s %s: 1:%.0f MSSIM %.3f (kept by an interrupted run of this commit)\n",
+                                p.method.c_str(), p.setting.c_str(), p.ratio, p.e.mssim_y);
+      else std::fprintf(stderr, "  %s %s: 1:%.0f MSSIM %.3f (encode %.1f s, %.0f s so far)\n", p.method.c_str(),
+                        p.setting.c_str(), p.ratio, p.e.mssim_y, p.seconds, clock.seconds());
+    };
     std::vector<std::pair<double, double>> settings;  // (quality, phase2_fraction or -1)
     for (double q : rd.qualities) settings.emplace_back(q, -1.0);
     for (double f : rd.phase2) settings.emplace_back(kDefaultQuality, f);
     for (const auto& [s, f] : settings) {
+      if (const Point* kept = journal.find("btfvq", btfvq_setting(s, f))) {
+        points.push_back(*kept);
+        report(*kept, true);
+        continue;
+      }
       points.push_back(run_btfvq(sample, s, f, rd.btf_cielab, args.scratch));
       points.back().ratio = raw / double(points.back().bytes);
-      std::fprintf(stderr, "  btfvq %s: 1:%.0f MSSIM %.3f (encode %.1f s, %.0f s so far)\n", points.back().setting.c_str(),
-                   points.back().ratio, points.back().e.mssim_y, points.back().seconds, clock.seconds());
+      journal.add(points.back());
+      report(points.back(), false);
     }
-    auto sink = [&](BaselinePoint& b) {
-      points.push_back(from_baseline(sample, b, rd.btf_cielab));
-      points.back().ratio = raw / double(points.back().bytes);
-      std::fprintf(stderr, "  %s %s: 1:%.0f MSSIM %.3f (encode %.1f s, %.0f s so far)\n", points.back().method.c_str(),
-                   points.back().setting.c_str(), points.back().ratio, points.back().e.mssim_y, points.back().seconds,
-                   clock.seconds());
+    // A baseline runs only for the sizes not kept; its points keep the order of the sizes asked.
+    auto baseline = [&](const std::string& method, const std::vector<int>& sizes,
+                        const std::function<void(const std::vector<int>&, const baselines::PointSink&)>& run) {
+      std::vector<int> missing;
+      for (int n : sizes)
+        if (!journal.find(method, n)) missing.push_back(n);
+      if (!missing.empty())
+        run(missing, [&](BaselinePoint& b) {
+          Point p = from_baseline(sample, b, rd.btf_cielab);
+          p.ratio = raw / double(p.bytes);
+          journal.add(p);
+          report(p, false);
+        });
+      for (int n : sizes) {
+        const Point* p = journal.find(method, n);
+        if (!p) throw std::runtime_error(method + " gave no point of size " + std::to_string(n));
+        if (std::find(missing.begin(), missing.end(), n) == missing.end()) report(*p, true);
+        points.push_back(*p);
+      }
     };
-    baselines::per_view_pca(sample, rd.pca, sink);
-    baselines::grouped_pca(sample, 3, rd.grouped, sink);
-    baselines::lab_pca(sample, rd.lab, sink);
-    baselines::texel_vq(sample, ParameterDictionary::embedded_default("pipeline"), rd.vq, sink);
+    baseline("per-view PCA", rd.pca, [&](const auto& sizes, const auto& sink) { baselines::per_view_pca(sample, sizes, sink); });
+    baseline("grouped PCA (k=3)", rd.grouped, [&](const auto& sizes, const auto& sink) { baselines::grouped_pca(sample, 3, sizes, sink); });
+    baseline("CIELab PCA", rd.lab, [&](const auto& sizes, const auto& sink) { baselines::lab_pca(sample, sizes, sink); });
+    baseline("one-level VQ", rd.vq, [&](const auto& sizes, const auto& sink) {
+      baselines::texel_vq(sample, ParameterDictionary::embedded_default("pipeline"), sizes, sink);
+    });
 
     std::ostringstream md;
     const bool cielab = rd.btf_cielab;
@@ -545,6 +659,7 @@ int main(int argc, char** argv) {
                                     {"ceiling_mssim", ceiling.mssim_y}, {"below_2x", m.below_2x},
                                     {"peak_memory_mb", bench::peak_rss_mb()}};
     keep_sample(args, quick, key, title, md.str(), figures, rd_command);
+    journal.finish();
   };
 
   for (const auto& [preset, size] : synth) {
