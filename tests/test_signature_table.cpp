@@ -133,7 +133,7 @@ TEST_CASE("nearest_many() of several queries at once, and extend() after appends
     }
     table.append(r.data());
   };
-  for (int e = 0; e < 2300; ++e) add(e);  // 2300 x 33 x 7 values: split over threads below
+  for (int e = 0; e < 2300; ++e) add(e);  // 2300 x 33 x 7 values: the queries spread over threads below
   std::vector<std::vector<float>> queries(7, std::vector<float>(size_t(width)));
   for (size_t q = 0; q < queries.size(); ++q)
     for (int i = 0; i < width; ++i) queries[q][size_t(i)] = table.row(q * 101)[i] * 1.3f + 0.1f * value(rng);
@@ -170,4 +170,68 @@ TEST_CASE("nearest_many() of several queries at once, and extend() after appends
     for (const auto& n : known[q]) got.push_back(n.e);
     CHECK(got == want);
   }
+}
+
+TEST_CASE("the direction groups answer exactly: every query of a large mixed table equals scoring every entry") {
+  // Directions in tight bundles (what code-book signatures are), spread ones, entries of norm 0,
+  // entries opposite to the queries (distance |q|^2), duplicates, and queries of norm 0 and
+  // between bundles: the groups must skip only entries that cannot be among the k nearest.
+  std::mt19937 rng(21);
+  std::normal_distribution<float> value(0.0f, 1.0f);
+  const int width = 21;  // a P3 signature
+  SignatureTable table(width);
+  std::vector<std::vector<float>> bundles(40, std::vector<float>(size_t(width)));
+  for (auto& b : bundles)
+    for (float& v : b) v = 8.0f * value(rng);
+  std::vector<std::vector<float>> rows;
+  for (int e = 0; e < 6000; ++e) {
+    std::vector<float> r(static_cast<size_t>(width));
+    if (e % 97 == 13) {
+      std::fill(r.begin(), r.end(), 0.0f);
+    } else if (e % 11 == 5) {
+      for (float& v : r) v = 8.0f * value(rng);
+    } else if (e % 59 == 0 && e > 0) {
+      r = rows[size_t(e / 2)];
+    } else {
+      const auto& b = bundles[size_t(e * 7) % bundles.size()];
+      const float scale = 0.2f + 0.05f * float(e % 41);
+      for (int i = 0; i < width; ++i) r[size_t(i)] = scale * (b[size_t(i)] + 0.15f * value(rng));
+    }
+    table.append(r.data());
+    rows.push_back(r);
+  }
+  CHECK(table.groups() > 1);
+  CHECK(table.groups() <= 64 + 2 * 78);  // the budget for 6000 entries
+  std::vector<std::vector<float>> queries;
+  for (int t = 0; t < 30; ++t) {
+    std::vector<float> q = rows[size_t(t * 193) % rows.size()];
+    for (float& v : q) v = v * 1.1f + (t % 4) * 0.3f * value(rng);
+    queries.push_back(q);
+  }
+  queries.push_back(std::vector<float>(size_t(width), 0.0f));
+  std::vector<float> between(static_cast<size_t>(width));
+  for (int i = 0; i < width; ++i) between[size_t(i)] = bundles[0][size_t(i)] + bundles[1][size_t(i)];
+  queries.push_back(between);
+  for (auto& b : bundles) {
+    std::vector<float> opposite = b;
+    for (float& v : opposite) v = -v;
+    queries.push_back(opposite);
+  }
+  for (const auto& q : queries)
+    for (size_t first : {size_t(0), size_t(1000)})
+      for (size_t k : {size_t(1), size_t(32), size_t(500)}) {
+        std::vector<SignatureTable::Neighbour> want;
+        for (size_t e = first; e < rows.size(); ++e)
+          want.push_back({reference_distance(q.data(), rows[e].data(), width), uint32_t(e)});
+        std::sort(want.begin(), want.end());
+        want.resize(std::min(k, want.size()));
+        std::vector<SignatureTable::Neighbour> got;
+        const float* qp = q.data();
+        table.nearest_many(&qp, 1, k, first, &got);
+        REQUIRE(got.size() == want.size());
+        for (size_t i = 0; i < want.size(); ++i) {
+          CHECK(got[i].e == want[i].e);
+          CHECK(same_bits(got[i].d, want[i].d));
+        }
+      }
 }

@@ -11,10 +11,6 @@ namespace btfvq {
 
 namespace {
 
-// Leaders beyond this many for n entries mean the radius is too small for the data: each list then
-// holds about one entry and a query degenerates into a scan of the leaders.
-size_t leader_budget(size_t n) { return 64 + 2 * size_t(std::sqrt(double(n))); }
-
 struct Ranked {
   float d;
   uint32_t id;
@@ -28,6 +24,8 @@ void keep(std::vector<Ranked>& heap, size_t k, float d, uint32_t id) {
 }
 
 }  // namespace
+
+size_t ProxyIndex::leader_budget(size_t n) { return 64 + 2 * size_t(std::sqrt(double(n))); }
 
 ProxyIndex::ProxyIndex(int dim, float radius) : dim_(dim), radius_(radius) {
   if (dim <= 0 || !(radius > 0) || !std::isfinite(radius))

@@ -26,6 +26,10 @@ class ProxyIndex {
 
   // Adds a vector; its id is the previous size().
   void insert(const float* v);
+  // Leaders beyond this many for n entries mean the radius is too small for the data: each list
+  // then holds about one entry and a query degenerates into a scan of the leaders (the rule of
+  // SignatureTable's direction groups too).
+  static size_t leader_budget(size_t n);
   // Up to k ids, nearest first (ties to the lower id), among every member of the lists of the
   // `probes` leaders nearest to q. Approximate only in that an entry nearer than those leaders'
   // members but in another list is not seen.

@@ -2,8 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
-#include <numeric>
 
+#include "pipeline/encode/proxy_index.h"
 #include "pipeline/util/bounded_heap.h"
 #include "pipeline/util/parallel.h"
 
@@ -24,6 +24,34 @@ double sum_of_squares(const float* v, size_t n) {
   return s;
 }
 
+// The chord between the direction of v (1 / |v| = inv) and a unit leader.
+double chord(const float* v, double inv, const std::vector<double>& leader) {
+  double s = 0;
+  for (size_t i = 0; i < leader.size(); ++i) {
+    const double d = double(v[i]) * inv - leader[i];
+    s += d * d;
+  }
+  return std::sqrt(s);
+}
+
+// What the rounding of the chords can hide (directions are computed in double).
+constexpr double kChordMargin = 1e-7;
+
+// A lower bound of the distance of q (|q|^2 = qq, its direction at chord c from a leader) to any
+// entry within chord r of that leader: their chord to q's direction is at least x = c - r, the
+// distance |q|^2 sin^2 of the angle, and sin^2 = x^2 (1 - x^2 / 4) up to 90 degrees (x^2 = 2),
+// |q|^2 beyond.
+double distance_bound(double qq, double c, double r) {
+  const double x = c - r - kChordMargin;
+  if (x <= 0) return 0;
+  const double x2 = x * x;
+  return x2 >= 2 ? qq : qq * x2 * (1 - x2 / 4);
+}
+
+// True when no entry whose distance is at least `bound` can enter a full heap: the float distances
+// round the double ones (relative 2^-24) and these lose up to a few ulp of qq to cancellation.
+bool beyond(double bound, double qq, float kth) { return bound * (1 - 1e-6) - 1e-12 * qq > double(kth); }
+
 }  // namespace
 
 float scaled_distance(const float* q, const float* y, int n) {
@@ -32,22 +60,19 @@ float scaled_distance(const float* q, const float* y, int n) {
   return float(distance_from(sum_of_squares(q, size_t(n)), qy, sum_of_squares(y, size_t(n))));
 }
 
-void SignatureTable::Blocks::append(const float* sig) {
-  if (n % kLanes == 0) {
-    v.resize(v.size() + width * kLanes, 0.0f);
-    yy.resize(yy.size() + kLanes, 0.0);
-  }
+void SignatureTable::Blocks::append(const float* sig, size_t width, double sq, uint32_t id) {
+  const size_t n = ids.size();
+  if (n % kLanes == 0) v.resize(v.size() + width * kLanes, 0.0f);
   float* block = v.data() + (n / kLanes) * width * kLanes;
   for (size_t i = 0; i < width; ++i) block[i * kLanes + n % kLanes] = sig[i];
-  yy[n] = sum_of_squares(sig, width);
-  ++n;
+  yy.push_back(sq);
+  ids.push_back(id);
 }
 
-void SignatureTable::Blocks::distances(const float* q, size_t first, size_t last, float* out) const {
-  last = std::min(last, n);
-  if (first >= last) return;
-  const double qq = sum_of_squares(q, width);
-  for (size_t b = first / kLanes; b * kLanes < last; ++b) {
+void SignatureTable::Blocks::select(const float* q, size_t width, double qq, size_t k, size_t first,
+                                   std::vector<Neighbour>& heap) const {
+  const size_t n = ids.size();
+  for (size_t b = 0; b * kLanes < n; ++b) {
     const float* block = v.data() + b * width * kLanes;
     double qy[kLanes] = {};
     for (size_t i = 0; i < width; ++i) {
@@ -55,125 +80,109 @@ void SignatureTable::Blocks::distances(const float* q, size_t first, size_t last
       const float* y = block + i * kLanes;
       for (size_t j = 0; j < kLanes; ++j) qy[j] += qi * double(y[j]);
     }
-    for (size_t j = 0; j < kLanes; ++j) {
-      const size_t e = b * kLanes + j;
-      if (e >= first && e < last) out[e - first] = float(distance_from(qq, qy[j], yy[e]));
+    // Once k are kept, an entry can only enter with a distance up to the k-th (equal: with a lower
+    // index, and the groups do not come in index order), qq - qy^2 / yy <= t; below t < float(qq)
+    // that needs qy > 0 (else the distance is exactly float(qq)). A test without the division, with
+    // a margin far above the rounding of the float distances, so it passes every entry that can
+    // enter; those then get the exact distance.
+    const size_t lanes = std::min(kLanes, n - b * kLanes);
+    unsigned pass = (1u << lanes) - 1;
+    if (heap.size() == k && heap.front().d < float(qq)) {
+      const double t = heap.front().d;
+      const double limit = qq - t - (1e-6 * std::abs(t) + 1e-12 * qq);
+      pass = 0;
+      for (size_t j = 0; j < lanes; ++j)
+        pass |= unsigned(qy[j] > 0 && qy[j] * qy[j] > limit * yy[b * kLanes + j]) << j;
+    }
+    for (; pass; pass &= pass - 1) {
+      const size_t e = b * kLanes + size_t(__builtin_ctz(pass));
+      if (ids[e] < first) continue;
+      keep_smallest(heap, k, Neighbour{float(distance_from(qq, qy[e - b * kLanes], yy[e])), ids[e]});
     }
   }
 }
 
 void SignatureTable::append(const float* sig) {
   values_.insert(values_.end(), sig, sig + width());
-  rows_.append(sig);
+  yy_.push_back(sum_of_squares(sig, width()));
+  assign(uint32_t(size() - 1));
+  if (groups_.size() > ProxyIndex::leader_budget(size())) rebuild();
+}
+
+void SignatureTable::assign(uint32_t e) {
+  const float* v = row(e);
+  if (!(yy_[e] > 0)) return zero_.append(v, width(), yy_[e], e);
+  const double inv = 1 / std::sqrt(yy_[e]);
+  double best = 0;
+  Group* near = nullptr;
+  for (Group& g : groups_)
+    if (const double c = chord(v, inv, g.leader); !near || c < best) best = c, near = &g;
+  if (!near || best > radius_) {
+    near = &groups_.emplace_back();
+    for (size_t i = 0; i < width(); ++i) near->leader.push_back(double(v[i]) * inv);
+    best = chord(v, inv, near->leader);
+  }
+  near->radius = std::max(near->radius, best);
+  near->members.append(v, width(), yy_[e], e);
+}
+
+void SignatureTable::rebuild() {
+  while (groups_.size() > ProxyIndex::leader_budget(size())) {
+    radius_ *= 2;
+    groups_.clear();
+    zero_ = {};
+    for (uint32_t e = 0; e < size(); ++e) assign(e);
+  }
 }
 
 void SignatureTable::scaled_distances(const float* q, size_t first, size_t last, float* out) const {
-  rows_.distances(q, first, last, out);
+  last = std::min(last, size());
+  const double qq = sum_of_squares(q, width());
+  for (size_t e = first; e < last; ++e) {
+    const float* y = row(e);
+    double qy = 0;
+    for (size_t i = 0; i < width(); ++i) qy += double(q[i]) * y[i];
+    out[e - first] = float(distance_from(qq, qy, yy_[e]));
+  }
 }
 
-namespace {
-
-// The sums q . y of one query with the entries of kGroup blocks (values in double, block after block,
-// each value-major): each entry's sum in value order, as Blocks::distances() takes it (the same
-// bits), the blocks' sums side by side so that the additions do not wait on each other.
-constexpr size_t kGroup = 4;
-void group_sums(const float* q, size_t width, const double* yd, double* out) {
-  constexpr size_t L = SignatureTable::kLanes;
-  double acc[kGroup][L] = {};
-  for (size_t i = 0; i < width; ++i) {
-    const double qi = q[i];
-    for (size_t g = 0; g < kGroup; ++g) {
-      const double* y = yd + (g * width + i) * L;
-      for (size_t j = 0; j < L; ++j) acc[g][j] += qi * y[j];
-    }
+void SignatureTable::nearest_one(const float* q, size_t k, size_t first, std::vector<Neighbour>& out) const {
+  out.clear();
+  const double qq = sum_of_squares(q, width());
+  // The groups by the bound of their members' distances (the entries of norm 0 last but one: at
+  // exactly |q|^2); a query of norm 0 is at distance 0 from everything.
+  thread_local std::vector<std::pair<double, size_t>> order;
+  order.clear();
+  const double inv = qq > 0 ? 1 / std::sqrt(qq) : 0;
+  for (size_t g = 0; g < groups_.size(); ++g)
+    order.emplace_back(qq > 0 ? distance_bound(qq, chord(q, inv, groups_[g].leader), groups_[g].radius) : 0, g);
+  order.emplace_back(qq, groups_.size());
+  std::sort(order.begin(), order.end());
+  for (const auto& [bound, g] : order) {
+    if (out.size() == k && beyond(bound, qq, out.front().d)) break;
+    (g < groups_.size() ? groups_[g].members : zero_).select(q, width(), qq, k, first, out);
   }
-  for (size_t g = 0; g < kGroup; ++g) std::copy(acc[g], acc[g] + L, out + g * L);
-}
-
-}  // namespace
-
-void SignatureTable::Blocks::select(const float* const* qs, const double* qq, size_t nq, size_t k, size_t first,
-                                   size_t last, std::vector<Neighbour>* heaps) const {
-  last = std::min(last, n);
-  if (first >= last || k == 0) return;
-  const size_t blocks = v.size() / (width * kLanes);
-  std::vector<double> yd(kGroup * width * kLanes), qy(kGroup * kLanes);
-  for (size_t b0 = first / kLanes; b0 * kLanes < last; b0 += kGroup) {
-    // kGroup blocks in double once (they stay in the cache for all queries); past the table's
-    // last block, zeros.
-    for (size_t g = 0; g < kGroup; ++g) {
-      double* out = yd.data() + g * width * kLanes;
-      if (b0 + g < blocks) {
-        const float* block = v.data() + (b0 + g) * width * kLanes;
-        for (size_t i = 0; i < width * kLanes; ++i) out[i] = block[i];
-      } else {
-        std::fill(out, out + width * kLanes, 0.0);
-      }
-    }
-    for (size_t q = 0; q < nq; ++q) {
-      group_sums(qs[q], width, yd.data(), qy.data());
-      std::vector<Neighbour>& heap = heaps[q];
-      for (size_t g = 0; g < kGroup && (b0 + g) * kLanes < last; ++g) {
-        const size_t b = b0 + g;
-        const double* a = qy.data() + g * kLanes;
-        const double* yb = yy.data() + b * kLanes;
-        // Once k are kept, an entry can only enter with a distance below the k-th, qq - qy^2 / yy < t
-        // (qy > 0; else the distance is qq, never below): a test without the division, with a margin
-        // far above the rounding of the float distances, so it passes every entry that can enter;
-        // those then get the exact distance.
-        unsigned pass = (1u << kLanes) - 1;
-        if (heap.size() == k && heap.front().d <= qq[q]) {
-          const double t = heap.front().d;
-          const double limit = qq[q] - t - (1e-6 * std::abs(t) + 1e-12 * qq[q]);
-          pass = 0;
-          for (size_t j = 0; j < kLanes; ++j) pass |= unsigned(a[j] > 0 && a[j] * a[j] > limit * yb[j]) << j;
-        }
-        for (; pass; pass &= pass - 1) {
-          const size_t e = b * kLanes + size_t(__builtin_ctz(pass));
-          if (e < first || e >= last) continue;
-          const size_t j = e - b * kLanes;
-          keep_smallest(heap, k, Neighbour{float(distance_from(qq[q], a[j], yy[e])), uint32_t(e)});
-        }
-      }
-    }
-  }
+  std::sort(out.begin(), out.end());
 }
 
 void SignatureTable::nearest_many(const float* const* qs, size_t nq, size_t k, size_t first, std::vector<Neighbour>* out,
                                   size_t threads) const {
-  const size_t n = size();
-  std::vector<double> qq(nq);
-  for (size_t q = 0; q < nq; ++q) {
-    qq[q] = sum_of_squares(qs[q], width());
-    out[q].clear();
-  }
-  if (first >= n || k == 0) return;
-  // A large level is split over the threads (the growing phases search on one thread otherwise);
-  // each part keeps its own k nearest, and the k nearest of their union are the same for any split.
-  const size_t grain = 64 * kLanes, from = first / kLanes * kLanes;
-  const size_t parts = threads != 1 && (n - first) * width() * nq >= 64 * 1024 ? (n - from + grain - 1) / grain : 1;
-  if (parts == 1) {
-    rows_.select(qs, qq.data(), nq, k, first, n, out);
-  } else {
-    std::vector<std::vector<Neighbour>> heaps(parts * nq);
-    parallel_for(0, parts, [&](size_t c) {
-      rows_.select(qs, qq.data(), nq, k, std::max(first, from + c * grain), std::min(n, from + (c + 1) * grain),
-                   heaps.data() + c * nq);
-    }, ParallelOptions{threads, 1});
-    for (size_t c = 0; c < parts; ++c)
-      for (size_t q = 0; q < nq; ++q) out[q].insert(out[q].end(), heaps[c * nq + q].begin(), heaps[c * nq + q].end());
-  }
-  for (size_t q = 0; q < nq; ++q) {
-    std::sort(out[q].begin(), out[q].end());
-    if (out[q].size() > k) out[q].resize(k);
-  }
+  for (size_t q = 0; q < nq; ++q) out[q].clear();
+  if (first >= size() || k == 0) return;
+  auto one = [&](size_t q) { nearest_one(qs[q], k, first, out[q]); };
+  // Each query is answered alone (the result does not depend on the split); several at once on
+  // the threads when the level is large enough to pay for them.
+  if (threads != 1 && nq > 1 && (size() - first) * width() * nq >= 64 * 1024)
+    parallel_for(0, nq, one, ParallelOptions{threads, 1});
+  else
+    for (size_t q = 0; q < nq; ++q) one(q);
 }
 
 void SignatureTable::extend(const float* q, size_t k, size_t end, std::vector<Neighbour>& known) const {
   const size_t n = size();
   if (end >= n) return;
   std::vector<float> d(n - end);
-  rows_.distances(q, end, n, d.data());
+  scaled_distances(q, end, n, d.data());
   for (size_t e = end; e < n; ++e) known.push_back({d[e - end], uint32_t(e)});
   std::sort(known.begin(), known.end());
   if (known.size() > k) known.resize(k);
