@@ -120,7 +120,7 @@ void SignatureTable::assign(uint32_t e) {
   if (!near || best > radius_) {
     near = &groups_.emplace_back();
     for (size_t i = 0; i < width(); ++i) near->leader.push_back(double(v[i]) * inv);
-    best = chord(v, inv, near->leader);
+    best = 0;  // the leader is this entry's own direction
   }
   near->radius = std::max(near->radius, best);
   near->members.append(v, width(), yy_[e], e);
