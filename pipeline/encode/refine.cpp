@@ -13,6 +13,26 @@
 
 namespace btfvq {
 
+void for_each_tile(const uint32_t* ids, size_t count, const TexelSource& source, size_t tile, size_t values,
+                   const std::function<void(size_t at, size_t n, const float* x)>& f) {
+  tile = std::max<size_t>(tile, 1);
+  std::vector<float> buffers[2];
+  auto fetch = [&](size_t at) {
+    std::vector<float>& b = buffers[(at / tile) % 2];
+    const size_t n = std::min(tile, count - at);
+    b.resize(n * values);
+    source(ids + at, n, b.data());
+  };
+  if (count == 0) return;
+  // Declared after the buffers: should f throw, its destructor waits for the prefetch before they go.
+  std::future<void> next = std::async(std::launch::async, fetch, size_t(0));
+  for (size_t at = 0; at < count; at += tile) {
+    next.get();  // the tile's texels (rethrows the source's error)
+    if (at + tile < count) next = std::async(std::launch::async, fetch, at + tile);
+    f(at, std::min(tile, count - at), buffers[(at / tile) % 2].data());
+  }
+}
+
 RefineSettings RefineSettings::from(const ParameterDictionary& d) {
   RefineSettings s;
   s.iterations = d.integer("refine.iterations", 0, 100);
@@ -65,26 +85,14 @@ struct PlaneSums {
   std::vector<double> gamma;        // per texel: |x - o|^2 over the scaled channels + unscaled error
 };
 
-// Calls f(t, x) for every texel t of the assignment with its values x, tile by tile, the next tile
-// resampled meanwhile (one source call at a time, in order). With `threads` != 1 the texels of a
-// tile are spread over the threads: only for an f that writes nothing but texel t's own outputs.
+// Calls f(t, x) for every texel t of the assignment with its values x (tiles as for_each_tile). With
+// `threads` != 1 the texels of a tile are spread over the threads: only for an f that writes
+// nothing but texel t's own outputs.
 template <class F>
-void for_each_tile(const Assignment& a, const TexelSource& source, size_t tile, size_t values, size_t threads, F&& f) {
-  std::vector<float> buffers[2];
-  auto fetch = [&](size_t at) {
-    std::vector<float>& b = buffers[(at / tile) % 2];
-    const size_t n = std::min(tile, a.ids.size() - at);
-    b.resize(n * values);
-    source(a.ids.data() + at, n, b.data());
-  };
-  std::future<void> next = std::async(std::launch::async, fetch, size_t(0));
-  for (size_t at = 0; at < a.ids.size(); at += tile) {
-    next.get();
-    if (at + tile < a.ids.size()) next = std::async(std::launch::async, fetch, at + tile);
-    const float* x = buffers[(at / tile) % 2].data();
-    const size_t n = std::min(tile, a.ids.size() - at);
+void for_each_texel(const Assignment& a, const TexelSource& source, size_t tile, size_t values, size_t threads, F&& f) {
+  for_each_tile(a.ids.data(), a.ids.size(), source, tile, values, [&](size_t at, size_t n, const float* x) {
     parallel_for(0, n, [&](size_t i) { f(at + i, x + i * values); }, ParallelOptions{threads, 1});
-  }
+  });
 }
 
 // Pass over the data with the current code-books: the sums of LowerSums and the squared error.
@@ -101,7 +109,7 @@ double lower_sums(const Codebooks& k, const CodebookSizes& first, Dynamic dyn, c
   const float oy = channel_offset(dyn, 0), oc = channel_offset(dyn, 1);
   const bool chroma_scales = channel_scales(dyn, 1);
   double error = 0;
-  for_each_tile(as, source, tile, 3 * L.samples, 1, [&](size_t t, const float* x) {
+  for_each_texel(as, source, tile, 3 * L.samples, 1, [&](size_t t, const float* x) {
     const float s6 = as.scale[t];
     const uint32_t p4 = as.p4[t];
     for (int p = 0; p < L.np; ++p) {
@@ -435,7 +443,7 @@ void plane_sums(const Codebooks& k, Dynamic dyn, const Assignment& as, const Tex
     o[c] = channel_offset(dyn, c);
     scaled[c] = channel_scales(dyn, c);
   }
-  for_each_tile(as, source, tile, 3 * L.samples, threads, [&](size_t t, const float* x) {  // texel t's sums only
+  for_each_texel(as, source, tile, 3 * L.samples, threads, [&](size_t t, const float* x) {  // texel t's sums only
     const uint32_t p4 = as.p4[t];
     double gamma = 0;
     for (int p = 0; p < L.np; ++p) {

@@ -53,6 +53,12 @@ struct RefineSettings {
 // Resamples the given texels (ids y * width + x) into out (n x 3 x grid.samples() floats).
 using TexelSource = std::function<void(const uint32_t* texel_ids, size_t n, float* out)>;
 
+// Calls f(at, n, x) for the tiles of `tile` texels of ids[0, count) in order, x the n texels
+// resampled (n x `values` floats); the next tile is resampled on another thread meanwhile, one source
+// call at a time and in order, so memory holds two tiles. An error of f or of the source ends it.
+void for_each_tile(const uint32_t* ids, size_t count, const TexelSource& source, size_t tile, size_t values,
+                   const std::function<void(size_t at, size_t n, const float* x)>& f);
+
 // Texels and what they are encoded as: P4 entry and P6 scale per id.
 struct Assignment {
   std::vector<uint32_t> ids;

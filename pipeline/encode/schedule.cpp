@@ -153,23 +153,19 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
     as.ids.assign(order.begin(), order.begin() + ptrdiff_t(refine_texels));
     as.p4.resize(refine_texels);
     as.scale.resize(refine_texels);
-    std::vector<float> buffer;
     std::vector<P6Entry> entries;
     for (int it = 0; it < schedule.refine.iterations; ++it) {
       if (progress) progress({2, true, size_t(it), size_t(schedule.refine.iterations), CodebookSizes::of(books)});
       FrozenSearch search(*encoder, path, schedule.threads);
-      for (size_t at = 0; at < refine_texels; at += tile) {
+      for_each_tile(as.ids.data(), refine_texels, source, tile, 3 * samples, [&](size_t at, size_t n, const float* x) {
         if (cancelled && cancelled()) throw CancelledError("encoding cancelled in the refinement");
-        const size_t n = std::min(tile, refine_texels - at);
-        buffer.resize(n * 3 * samples);
         entries.resize(n);
-        source(as.ids.data() + at, n, buffer.data());
-        search.encode(buffer.data(), n, entries.data());
+        search.encode(x, n, entries.data());
         for (size_t i = 0; i < n; ++i) {
           as.p4[at + i] = entries[i].index;
           as.scale[at + i] = entries[i].scale;
         }
-      }
+      });
       const RefineStep step = refine_step(books, first, dyn, as, source, tile, it == 0 ? schedule.refine.merge : RefineMerge{},
                                           size_t(schedule.threads));
       result.report.refine.push_back(step);
