@@ -140,14 +140,13 @@ struct Encoder::Ctx {
   std::vector<uint32_t> order;
   std::vector<uint8_t> tried;
   EncoderStats counts;
-  // Candidate orders of the parts a composition is about to search (prime_orders) and of a texel
-  // searched ahead (speculate_p4), by level (0: M, 1: P3, 2: P4) and the query's first value; each
-  // holds the k nearest among the entries below `end`.
+  // Candidate orders of the parts a composition is about to search (prime_orders), by level (0: M,
+  // 1: P3) and the part's first value; each holds the k nearest among the entries below `end`.
   struct Memo {
     size_t end = 0;
     std::vector<SignatureTable::Neighbour> near;
   };
-  std::unordered_map<const float*, Memo> memo[3];
+  std::unordered_map<const float*, Memo> memo[2];
 };
 
 // The input slice: `planes` planes with channels [first, first + channels), values in units `unit`
@@ -700,7 +699,8 @@ void Encoder::order_composite(const Query& q, int level, Ctx& ctx) const {
   // The k nearest by proxy: from the composition's one pass over the table plus the entries added
   // since, or a scan of its own.
   Ctx::Memo* memo = nullptr;
-  if (auto it = ctx.memo[level - 2].find(q.views[0].v); it != ctx.memo[level - 2].end()) memo = &it->second;
+  if (level < 4)
+    if (auto it = ctx.memo[level - 2].find(q.views[0].v); it != ctx.memo[level - 2].end()) memo = &it->second;
   if (memo) {
     sig.extend(qsig.data(), k, memo->end, memo->near);
     memo->end = n;
@@ -1033,6 +1033,25 @@ Encoder::Match Encoder::search_i1(const float* row, float unit, double threshold
 // ---------------------------------------------------------------------------------------------
 // Encoding, top-down with bottom-up insertion.
 
+P6Entry Encoder::encode_growing(const float* texel) {
+  sync();
+  Ctx ctx;
+  const Match m = encode_p4(texel, ctx);
+  stats_.texels += 1;
+  stats_.comparisons += ctx.counts.comparisons;
+  stats_.pruned += ctx.counts.pruned;
+  stats_.fallbacks += ctx.counts.fallbacks;
+  stats_.laesa_skipped += ctx.counts.laesa_skipped;
+  stats_.ahead += ctx.counts.ahead;
+  stats_.ahead_extended += ctx.counts.ahead_extended;
+  stats_.ahead_redone += ctx.counts.ahead_redone;
+  P6Entry r;
+  r.index = uint32_t(m.index);
+  r.scale = m.scale;
+  r.dissimilarity = score_to_dissimilarity(settings_.metric, m.score, size_t(3) * grid_.samples());
+  return r;
+}
+
 namespace {
 
 // The texel with luminance clamped at black: 0 for HDR, the studio-swing 16 for LDR. Below black
@@ -1052,81 +1071,6 @@ float luminance_range(const float* texel, size_t samples) {
 }
 
 }  // namespace
-
-P6Entry Encoder::encode_growing(const float* texel) {
-  P6Entry r;
-  encode_growing(texel, 1, &r);
-  return r;
-}
-
-// What a texel of a run takes from the first step to the second: its values, query, scratch and
-// the P4 search it made against the code-books as the run began.
-struct Encoder::Ahead {
-  std::vector<float> texel;
-  Query q;
-  Ctx ctx;
-  Speculation spec;
-};
-
-// Texel after texel, each texel's P4 search first runs against the code-books as they are when
-// the run begins, the texels spread over the threads (most of a growing texel's work when most
-// texels find an entry), then in order confirm() adds the entries the texels before it inserted,
-// exactly as for the parts of a composition (speculate): the same entries as one texel at a time.
-void Encoder::encode_growing(const float* texels, size_t n, P6Entry* out) {
-  const size_t samples = grid_.samples(), values = 3 * samples;
-  for (size_t first = 0; first < n; first += kGrowAhead) {
-    sync();
-    const size_t m = std::min(kGrowAhead, n - first);
-    const bool spread = threads_ > 1 && m > 1;  // else the planes of one texel go over the threads
-    std::vector<Ahead> ahead(m);
-    auto prepare = [&](size_t i) {
-      Ahead& a = ahead[i];
-      a.texel = clamped_texel(texels + (first + i) * values, samples, dyn_);
-      a.q = texel_query(a.texel, a.ctx);
-      if (spread) a.spec = speculate_p4(a.q, a.ctx);
-    };
-    if (spread) parallel_for(0, m, prepare, ParallelOptions{threads_, 1});
-    else prepare(0);
-    for (size_t i = 0; i < m; ++i) {
-      Ahead& a = ahead[i];
-      if (!spread && i > 0) prepare(i);
-      const Match r = encode_p4(a.q, a.ctx, spread ? &a.spec : nullptr);
-      stats_.texels += 1;
-      stats_.comparisons += a.ctx.counts.comparisons;
-      stats_.pruned += a.ctx.counts.pruned;
-      stats_.fallbacks += a.ctx.counts.fallbacks;
-      stats_.laesa_skipped += a.ctx.counts.laesa_skipped;
-      stats_.ahead += a.ctx.counts.ahead;
-      stats_.ahead_extended += a.ctx.counts.ahead_extended;
-      stats_.ahead_redone += a.ctx.counts.ahead_redone;
-      P6Entry& e = out[first + i];
-      e.index = uint32_t(r.index);
-      e.scale = r.scale;
-      e.dissimilarity = score_to_dissimilarity(settings_.metric, r.score, values);
-    }
-  }
-}
-
-// The texel's P4 search on one thread, its order kept (the memo) so that confirm() extends it by
-// the entries added since instead of scanning the table again.
-Encoder::Speculation Encoder::speculate_p4(const Query& q, Ctx& ctx) const {
-  Speculation s;
-  const SignatureTable& sig = signatures(4);
-  if (const size_t k = proxy_k(4); k > 0) {
-    std::vector<float> qsig;
-    proxy_signature(q, 4, qsig);
-    const float* qs = qsig.data();
-    std::vector<SignatureTable::Neighbour> near;
-    sig.nearest_many(&qs, 1, k, 0, &near, 1);
-    ctx.memo[2][q.views[0].v] = {sig.size(), std::move(near)};
-  }
-  order_composite(q, 4, ctx);
-  s.order = ctx.order;
-  s.end = sig.size();
-  s.best = search_composite_in(q, 4, s.order, bound_for(thresholds_.p4, q.values), ctx, 1);
-  ++ctx.counts.ahead;
-  return s;
-}
 
 // Compositions are checked at the scale they were composed with: every child's SSIM values are then
 // the parent's own values (windows never cross planes), and the parent's percentile counts the
@@ -1225,10 +1169,12 @@ Encoder::Composite Encoder::compose(const Query& q, const std::vector<Query>& pa
   return c;
 }
 
-Encoder::Match Encoder::encode_p4(const Query& q, Ctx& ctx, const Speculation* spec) {
+Encoder::Match Encoder::encode_p4(const float* texel_in, Ctx& ctx) {
+  const std::vector<float> texel = clamped_texel(texel_in, grid_.samples(), dyn_);
+  const Query q = texel_query(texel, ctx);
   const int n = g2_.size(), nt = grid_.n_theta_v;
   const double bound = bound_for(thresholds_.p4, q.values);
-  const Match found = spec ? confirm(q, 4, bound, *spec, ctx) : search_composite(q, 4, bound, ctx);
+  const Match found = search_composite(q, 4, bound, ctx);
   if (found.index >= 0) return found;
   prime_orders(q, 3, grid_.n_phi_v, nt, ctx);
   std::vector<Query> parts;

@@ -109,9 +109,6 @@ class Encoder {
 
   // Phases 1 and 2: encodes texel (3 x grid.samples() coding-space floats), growing the code-books.
   P6Entry encode_growing(const float* texel);
-  // The same for n texels one after the other (out[i] as encode_growing(texel i) in that order),
-  // with the first search of several texels at once on the encoder's threads.
-  void encode_growing(const float* texels, size_t n, P6Entry* out);
   // Phase 3: the best P4 entry and its scale; no insertion. Throws InputError if P4 is empty.
   // Thread-safe (const) as long as nobody grows the code-books at the same time.
   P6Entry encode_frozen(const float* texel) const;
@@ -209,11 +206,6 @@ class Encoder {
     Match best;
   };
   std::vector<Speculation> speculate(const std::vector<Query>& parts, int level, double threshold, Ctx& ctx) const;
-  Speculation speculate_p4(const Query& q, Ctx& ctx) const;
-  struct Ahead;
-  // Texels a run of encode_growing() searches ahead at once: a few per thread, each holding its
-  // query (about half a megabyte at the shipped grid).
-  static constexpr size_t kGrowAhead = 16;
   Match confirm(const Query& q, int level, double bound, const Speculation& s, Ctx& ctx) const;
   void check_frozen() const;
   Query texel_query(const std::vector<float>& texel, Ctx& ctx) const;
@@ -224,7 +216,7 @@ class Encoder {
   Match search_i1(const float* row, float unit, double bound, Ctx& ctx) const;
 
   // cap: the threshold a repair imposes (the parent's); kNoCap (infinity) leaves the level's own.
-  Match encode_p4(const Query& q, Ctx& ctx, const Speculation* spec);
+  Match encode_p4(const float* texel, Ctx& ctx);
   // spec: the part's speculative first search (compose), or null to search here.
   Match encode_p3(const Query& q, Ctx& ctx, double cap, const Speculation* spec);
   Match encode_m(const Query& q, Ctx& ctx, double cap, const Speculation* spec);

@@ -226,9 +226,7 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
       result.dissimilarity[id] = float(e.dissimilarity);
     };
     if (phase < 3) {
-      std::vector<P6Entry> entries(n);
-      encoder->encode_growing(texels, n, entries.data());
-      for (size_t i = 0; i < n; ++i) store(i, entries[i]);
+      for (size_t i = 0; i < n; ++i) store(i, encoder->encode_growing(texels + i * 3 * samples));
     } else {
       if (!frozen)
         frozen = std::make_unique<FrozenSearch>(*encoder, path, schedule.threads);
