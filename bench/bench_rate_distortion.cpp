@@ -170,6 +170,7 @@ struct Point {
   EvaluationReport e;
   std::optional<double> btf_cielab;  // its mean, when the column is on
   int size = 0;                      // a baseline's size parameter (its components or entries)
+  std::map<std::string, uint64_t> levels;  // btfvq: bytes in the file per code-book, "P6" the material's indices
 };
 
 nlohmann::json to_json(const Point& p) {
@@ -179,6 +180,7 @@ nlohmann::json to_json(const Point& p) {
                       {"ciede2000_p95", p.e.ciede2000_p95}, {"images", p.e.images}};
   // JSON has no infinity: an identical decoding's PSNR is kept as null.
   j["psnr"] = std::isfinite(p.e.psnr) ? nlohmann::json(p.e.psnr) : nlohmann::json(nullptr);
+  if (!p.levels.empty()) j["levels"] = p.levels;
   if (p.btf_cielab) j["btf_cielab"] = *p.btf_cielab;
   return j;
 }
@@ -199,6 +201,7 @@ Point point_from_json(const nlohmann::json& j) {
   p.e.ciede2000_p95 = j.at("ciede2000_p95");
   p.e.images = j.at("images");
   if (j.contains("btf_cielab")) p.btf_cielab = j.at("btf_cielab").get<double>();
+  if (j.contains("levels")) p.levels = j.at("levels").get<std::map<std::string, uint64_t>>();
   return p;
 }
 
@@ -282,6 +285,9 @@ Point run_btfvq(const MeasuredSample& sample, double quality, double phase2, boo
   p.method = "btfvq";
   p.setting = btfvq_setting(quality, phase2);
   p.bytes = std::filesystem::file_size(path);
+  const DatabaseInfo info = inspect_database(path.string());
+  for (int i = 0; i < kCodebookCount; ++i) p.levels[codebook_name(CodebookId(i))] = info.codebook_bytes[i];
+  for (const auto& m : info.materials) p.levels["P6"] += m.section_bytes;
   score(p, sample, reconstruct_sample(read_database(path.string()), "m", sample), with_btf_cielab);
   std::filesystem::remove(path);
   return p;
@@ -334,7 +340,6 @@ struct Matched {
   std::string text;  // one markdown line
   nlohmann::json json;
   int below_2x = 0, compared = 0, bounded = 0;  // bounded: factors that are only upper bounds
-  std::string best_method;  // the PCA baseline most often best at the matched points
 };
 
 // At each btfvq point's MSSIM: btfvq's ratio over the best PCA baseline's interpolated ratio. Where
@@ -347,7 +352,6 @@ Matched matched_mssim(const std::vector<Point>& points, const std::function<bool
   out.json = nlohmann::json::array();
   std::ostringstream line;
   int at_least_2x = 0, compared = 0;
-  std::map<std::string, int> best_count;
   for (const Point* b : curves["btfvq"]) {
     double best = 0;
     std::string best_method;
@@ -371,7 +375,6 @@ Matched matched_mssim(const std::vector<Point>& points, const std::function<bool
       const double f = b->ratio / best;
       ++compared;
       out.bounded += bound;
-      ++best_count[best_method];
       at_least_2x += f >= 2.0;
       std::snprintf(buf, sizeof buf, "MSSIM %.3f: btfvq 1:%.0f vs %s 1:%.0f%s = **%s%.2fx**; ", b->e.mssim_y, b->ratio,
                     best_method.c_str(), best, bound ? " (its lowest-MSSIM point, still above)" : "", bound ? "<= " : "", f);
@@ -382,8 +385,6 @@ Matched matched_mssim(const std::vector<Point>& points, const std::function<bool
   }
   out.below_2x = compared - at_least_2x;
   out.compared = compared;
-  for (const auto& [method, n] : best_count)
-    if (out.best_method.empty() || n > best_count[out.best_method]) out.best_method = method;
   std::string s = line.str();
   if (s.size() >= 2) s.resize(s.size() - 2);
   out.text = s + (compared ? (at_least_2x == compared ? (out.bounded ? " -- upper bounds only: 2x is not established."
@@ -409,41 +410,116 @@ void write_plot(const bench::Args& args, const std::string& key, const std::stri
 }
 
 
-// Why btfvq stays below 2x the best PCA baseline on a sample: the sentences BENCHMARKS.md prints
-// next to the numbers, chosen from what was measured (which PCA wins, how close btfvq is to the
-// parametrization's ceiling, how far its threshold settings move its MSSIM).
-std::string why_not_2x(const Matched& m, double ceiling, double lo, double hi) {
+// "a, b and c" of a list already formatted.
+std::string joined(const std::vector<std::string>& items) {
+  std::string out;
+  for (size_t i = 0; i < items.size(); ++i)
+    out += (i == 0 ? "" : i + 1 == items.size() ? " and " : ", ") + items[i];
+  return out;
+}
+
+std::string fixed(const char* format, double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, format, v);
+  return buf;
+}
+
+// Why btfvq stays below 2x the best PCA baseline on a sample: the paragraph BENCHMARKS.md prints
+// next to its numbers, derived from the sample's kept figures only (so that a better rule also
+// reaches samples measured before it): which PCA wins, what each side stores per texel at the points
+// below 2x, how many times each side's size grows over them, and, where the run recorded it, which of
+// btfvq's levels hold its bytes there. Empty when btfvq is at 2x everywhere it was matched.
+std::string why_not_2x(const nlohmann::json& f) {
+  struct Match {
+    double mssim, ratio, pca_ratio;
+  };
+  std::vector<Match> measured, below;  // by MSSIM, as matched_mssim lists btfvq's points
+  std::map<std::string, int> best;
+  int bounded = 0;
+  for (const auto& m : f.at("matched_mssim")) {
+    if (!m.at("factor").is_number()) continue;
+    ++best[m.at("pca").get<std::string>()];
+    if (m.value("upper_bound", false)) {
+      ++bounded;
+      continue;
+    }
+    const Match x{m.at("mssim").get<double>(), m.at("btfvq_ratio").get<double>(), m.at("pca_ratio").get<double>()};
+    measured.push_back(x);
+    if (m.at("factor").get<double>() < 2.0) below.push_back(x);
+  }
+  if (below.empty() && bounded == 0) return "";
+  const auto by_mssim = [](const Match& a, const Match& b) { return a.mssim < b.mssim; };
+  std::sort(measured.begin(), measured.end(), by_mssim);
+  std::sort(below.begin(), below.end(), by_mssim);
+  std::string strongest;
+  for (const auto& [method, n] : best)
+    if (strongest.empty() || n > best[strongest]) strongest = method;
+
   std::ostringstream w;
-  char num[64];
-  w << "Why not 2x everywhere here: the strongest PCA is " << m.best_method << ". ";
-  if (m.best_method == "CIELab PCA")
+  const auto text = [&w] {
+    std::string t = w.str();
+    while (!t.empty() && t.back() == ' ') t.pop_back();
+    return t;
+  };
+  w << "Why not 2x everywhere here: the strongest PCA is " << strongest << ". ";
+  if (strongest == "CIELab PCA")
     w << "A full-matrix factorization stores each eigen-ABRDF (6561 values) once for all texels and each eigen-image "
          "at one byte per texel, so a material whose texels mix a few reflectance behaviours is nearly low-rank and a "
          "handful of components reach btfvq's quality. ";
   else
     w << "Its per-view (or per-group) bases follow the light dependence closely at one byte per texel and component. ";
-  if (m.bounded > 0)
+  if (bounded > 0)
     w << "Where even the PCA's smallest measured setting is above btfvq's MSSIM, only an upper bound of the factor is "
          "known (a PCA cannot go below one component). ";
-  std::snprintf(num, sizeof num, "%.3f", ceiling);
-  if (ceiling - hi > 0.05)
-    w << "The parametrization alone keeps MSSIM at " << num
-      << ", so btfvq's loss comes from its code-books: the P3 and lower levels are grown by the phase-1/2 texels "
-         "(about 6% of them) and frozen, and phase 3 (the rest) picks a stored P4 entry or composes a new one from "
-         "those frozen P3 entries, so a higher quality buys more composed P4 entries (bytes) over the same frozen "
-         "parts rather than closer parts. ";
-  else
-    w << "btfvq is within 0.05 of the parametrization's ceiling (MSSIM " << num << "), so its remaining loss is the "
-         "resampling's, which no threshold removes. ";
-  if (ceiling - hi <= 0.05) return w.str();  // at the ceiling: the spread of the settings says nothing more
-  std::snprintf(num, sizeof num, "%.3f-%.3f", lo, hi);
-  if (hi - lo < 0.05)
-    w << "Its settings move its MSSIM only within " << num
-      << " while its size changes a lot (a nearly vertical curve): higher qualities buy bytes, not quality, so "
-         "btfvq does not reach the high-MSSIM part of the PCA curves, where PCA is least efficient.";
-  else
-    w << "Its settings span MSSIM " << num << "; the PCA curve rises faster with bytes in that range.";
-  return w.str();
+  if (below.empty()) return text();
+
+  // Bytes per texel = raw bytes per texel / ratio (the samples here are 8-bit: 6561 x 3 bytes).
+  const double raw_per_texel = f.value("raw_bytes_per_texel", 6561.0 * 3.0);
+  std::vector<std::string> at, ours, theirs;
+  for (const auto& b : below) {
+    at.push_back(fixed("%.3f", b.mssim));
+    ours.push_back(fixed("%.0f", raw_per_texel / b.ratio));
+    theirs.push_back(fixed("%.0f", raw_per_texel / b.pca_ratio));
+  }
+  w << "Below 2x at MSSIM " << joined(at) << ": there btfvq stores " << joined(ours)
+    << " bytes per texel, the best PCA at the same MSSIM " << joined(theirs) << ". ";
+
+  // From the matched point before the first one below 2x (if any) to the last one below 2x.
+  const auto first = std::find_if(measured.begin(), measured.end(), [&](const Match& m) { return m.mssim >= below.front().mssim; });
+  const Match& from = first == measured.begin() ? *first : *(first - 1);
+  const Match& to = below.back();
+  if (to.mssim > from.mssim) {
+    const double ours_grows = from.ratio / to.ratio, theirs_grows = from.pca_ratio / to.pca_ratio;
+    w << "From MSSIM " << fixed("%.3f", from.mssim) << " to " << fixed("%.3f", to.mssim) << " btfvq's size grows "
+      << fixed("%.1f", ours_grows) << "-fold, the best PCA's " << fixed("%.1f", theirs_grows) << "-fold"
+      << (ours_grows > theirs_grows ? ": btfvq buys MSSIM with bytes more slowly there. "
+                                    : ": the gap is not in how fast the curves rise but already at the lower point. ");
+  }
+
+  // Where btfvq's bytes are at the highest point below 2x (runs that recorded the levels).
+  for (const auto& row : f.at("points")) {
+    if (row.at("method") != "btfvq" || row.at("ratio").get<double>() != to.ratio || !row.contains("levels")) continue;
+    std::vector<std::pair<uint64_t, std::string>> levels;
+    uint64_t total = 0, per_texel = 0;
+    for (const auto& [name, bytes] : row.at("levels").items()) {
+      levels.emplace_back(bytes.get<uint64_t>(), name);
+      total += bytes.get<uint64_t>();
+      if (name == "P4" || name == "P6") per_texel += bytes.get<uint64_t>();
+    }
+    if (total == 0) break;
+    std::sort(levels.rbegin(), levels.rend());
+    std::vector<std::string> shares;
+    for (size_t i = 0; i < levels.size() && i < 3; ++i)
+      shares.push_back(levels[i].second + " " + fixed("%.0f%%", 100.0 * double(levels[i].first) / double(total)));
+    w << "At MSSIM " << fixed("%.3f", to.mssim) << " (" << row.at("setting").get<std::string>() << ") its largest levels are "
+      << joined(shares) << " of the code-book and index bytes; the per-texel rows (P4 entries and P6 indices) are "
+      << fixed("%.0f%%", 100.0 * double(per_texel) / double(total))
+      << (2 * per_texel < total ? ", so most bytes are the lower code-books that the growing phases build at that "
+                                  "quality's thresholds, not per-texel rows. "
+                                : ", so most bytes are per-texel rows. ");
+    break;
+  }
+  return text();
 }
 
 // The command that reproduces this run, as bench/run.sh describes it (BTFVQ_BENCH_COMMAND) plus this
@@ -487,6 +563,19 @@ void keep_sample(const bench::Args& args, bool quick, const std::string& key, co
                                {"figures", figures},
                                {"provenance", {{"commit", commit ? commit : "unknown"}, {"command", command}, {"date", utc_now()}}}};
   write_file_atomically((dir / (key + ".json")).string(), kept.dump(1));
+}
+
+// A kept sample's markdown with the why paragraph in front of its memory line. Samples kept before
+// the paragraph was derived here carry an older one in their markdown: it is replaced.
+std::string with_why(std::string markdown, const std::string& why) {
+  const std::string old = "Why not 2x everywhere here:";
+  if (const auto at = markdown.find(old); at != std::string::npos) {
+    const auto end = markdown.find("\n\n", at);
+    markdown.erase(at, end == std::string::npos ? std::string::npos : end + 2 - at);
+  }
+  if (why.empty()) return markdown;
+  const auto memory = markdown.find("Peak resident memory");
+  return markdown.insert(memory == std::string::npos ? markdown.size() : memory, why + "\n\n");
 }
 
 // The section: the method, then every kept sample with the run that measured it, then the tally.
@@ -535,7 +624,7 @@ void write_rd_section(const bench::Args& args, bool quick) {
     const auto& p = k["provenance"];
     md << "### " << k["title"].get<std::string>() << "\n\n*Measured by `" << p["command"].get<std::string>()
        << "` at commit " << p["commit"].get<std::string>() << " on " << p["date"].get<std::string>() << ".*\n\n"
-       << k["markdown"].get<std::string>();
+       << with_why(k["markdown"].get<std::string>(), why_not_2x(k["figures"]));
     figures[k["key"].get<std::string>()] = k["figures"];
     if (everywhere) ++wins, won += (won.empty() ? "" : ", ") + k["title"].get<std::string>();
   }
@@ -636,6 +725,7 @@ int main(int argc, char** argv) {
       rows.push_back({{"method", p.method}, {"setting", p.setting}, {"ratio", p.ratio}, {"bytes", p.bytes},
                       {"mssim", p.e.mssim_y}, {"psnr", p.e.psnr}, {"ciede2000_mean", p.e.ciede2000_mean}, {"seconds", p.seconds}});
       if (p.btf_cielab) rows.back()["btf_cielab_mean"] = *p.btf_cielab;
+      if (!p.levels.empty()) rows.back()["levels"] = p.levels;
     }
     const Matched m = matched_mssim(points, is_pca);
     const Matched per_view = matched_mssim(points, [](const std::string& method) { return method == "per-view PCA"; });
@@ -652,11 +742,11 @@ int main(int argc, char** argv) {
                   ceiling.mssim_y, ceiling.psnr, ceiling.ciede2000_mean, lo, hi);
     md << "\n" << ceil_text << "\n\nMatched MSSIM (btfvq / best PCA baseline, log-ratio interpolated along each curve): "
        << m.text << "\n\nAgainst per-view PCA alone (the \"PCA\" column of paper 000): " << per_view.text << "\n\n";
-    if (m.below_2x > 0 || m.bounded > 0) md << why_not_2x(m, ceiling.mssim_y, lo, hi) << "\n\n";
     md << "Peak resident memory of the run so far: " << int(bench::peak_rss_mb()) << " MB.\n\n";
     md << "![rate-distortion, " << title << "](bench/results/rd_" << key << ".png)\n\n";
     const nlohmann::json figures = {{"points", rows}, {"matched_mssim", m.json}, {"matched_mssim_per_view_pca", per_view.json},
                                     {"ceiling_mssim", ceiling.mssim_y}, {"below_2x", m.below_2x},
+                                    {"raw_bytes_per_texel", raw / double(size_t(sample.width()) * size_t(sample.height()))},
                                     {"peak_memory_mb", bench::peak_rss_mb()}};
     keep_sample(args, quick, key, title, md.str(), figures, rd_command);
     journal.finish();
