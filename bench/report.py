@@ -33,7 +33,9 @@ def main():
         "compiler": sh("c++ --version | head -1"),
         "opencl": sh("clinfo -l 2>/dev/null | tr '\\n' ' '"),
     }
-    commit = sh("git rev-parse --short HEAD") + (" (dirty)" if sh("git status --porcelain --untracked-files=no") else "")
+    # The bench's own outputs (this file, the sections just written) do not make the code dirty.
+    dirty = sh("git status --porcelain --untracked-files=no -- . ':!BENCHMARKS.md' ':!bench/results'")
+    commit = sh("git rev-parse --short HEAD") + (" (dirty)" if dirty else "")
     when = datetime.datetime.utcnow().strftime("%Y-%m-%d %H:%M UTC")
     lines = ["# btfvq benchmarks", "",
              f"Assembled by `{a.command}` (bench/run.sh) on {when}, commit {commit}; each section says "
