@@ -4,6 +4,8 @@
 #include <chrono>
 #include <cstring>
 #include <filesystem>
+#include <memory>
+#include <mutex>
 #include <optional>
 #include <set>
 
@@ -118,9 +120,20 @@ TexelSource texel_source(const MeasuredSample& sample, const ResampleOperator& o
   const size_t pairs = sample.pair_count();
   std::vector<std::vector<Direction>> lights;
   for (size_t v = 0; v < sample.view_count(); ++v) lights.push_back(sample.lights(v));
-  return [&sample, &op, seconds, pairs, lights](const uint32_t* ids, size_t n, float* out) {
+  // The gathered tile is kept for the next call: a fresh one (5 MB for 256 LDR texels) per call
+  // costs mostly page faults. A call that finds it in use (calls overlapping) gathers into its own.
+  struct Spare {
+    std::mutex mutex;
+    std::optional<MeasuredSample> tile;
+  };
+  auto spare = std::make_shared<Spare>();
+  return [&sample, &op, seconds, pairs, lights, spare](const uint32_t* ids, size_t n, float* out) {
     const auto t = std::chrono::steady_clock::now();
-    MeasuredSample tile(int(n), 1, sample.views(), lights, sample.dynamic());
+    std::unique_lock<std::mutex> kept(spare->mutex, std::try_to_lock);
+    std::optional<MeasuredSample> own;
+    std::optional<MeasuredSample>& slot = kept.owns_lock() ? spare->tile : own;
+    if (!slot || size_t(slot->width()) != n) slot.emplace(int(n), 1, sample.views(), lights, sample.dynamic());
+    MeasuredSample& tile = *slot;
     for (size_t i = 0; i < n; ++i) {
       const size_t from = size_t(ids[i]) * pairs * 3, to = i * pairs * 3;
       if (sample.is_hdr())

@@ -1057,10 +1057,15 @@ namespace {
 // The texel with luminance clamped at black: 0 for HDR, the studio-swing 16 for LDR. Below black
 // an RGB scale would turn (Y - 16) negative; normalizing such a slice amplifies the overshoot of the
 // interpolation into negative densities in P1 (and ruins the range of the P1 quantizer).
-std::vector<float> clamped_texel(const float* texel, size_t samples, Dynamic dyn) {
-  std::vector<float> t(texel, texel + 3 * samples);
+void clamp_texel(const float* texel, size_t samples, Dynamic dyn, std::vector<float>& t) {
+  t.assign(texel, texel + 3 * samples);
   const float black = channel_offset(dyn, 0);
   for (size_t i = 0; i < samples; ++i) t[i] = std::max(black, t[i]);
+}
+
+std::vector<float> clamped_texel(const float* texel, size_t samples, Dynamic dyn) {
+  std::vector<float> t;
+  clamp_texel(texel, samples, dyn, t);
   return t;
 }
 
@@ -1548,7 +1553,7 @@ void Encoder::check_frozen() const {
 }
 
 // The whole texel as a level-4 query (owning its window statistics) and its SSIM constants.
-Encoder::Query Encoder::texel_query(const std::vector<float>& texel, Ctx& ctx) const {
+Encoder::Query Encoder::texel_query(const std::vector<float>& texel, Ctx& ctx, std::vector<float> stats) const {
   const size_t samples = grid_.samples();
   ctx.k = SsimConstants::make(settings_, dyn_, luminance_range(texel.data(), samples));
   ctx.scratch.resize(size_t(3 * g2_.size()));
@@ -1556,6 +1561,7 @@ Encoder::Query Encoder::texel_query(const std::vector<float>& texel, Ctx& ctx) c
   Query q;
   q.planes = nplanes;
   q.values = size_t(3) * samples;
+  q.stats = std::move(stats);
   q.stats.resize(size_t(2 * 3 * nplanes * n));
   q.views.resize(size_t(3 * nplanes));
   for_each_plane(nplanes, threads_, ctx.scratch, [&](int p, float*) {
@@ -1700,11 +1706,16 @@ P6Entry Encoder::encode_frozen_among(const FrozenQuery& f, const std::vector<uin
 }
 
 FrozenQuery Encoder::frozen_query(const float* texel_in) const {
-  check_frozen();
   FrozenQuery f;
-  f.texel = clamped_texel(texel_in, grid_.samples(), dyn_);
+  frozen_query(texel_in, f);
+  return f;
+}
+
+void Encoder::frozen_query(const float* texel_in, FrozenQuery& f) const {
+  check_frozen();
+  clamp_texel(texel_in, grid_.samples(), dyn_, f.texel);
   Ctx ctx;
-  Query q = texel_query(f.texel, ctx);
+  Query q = texel_query(f.texel, ctx, std::move(f.stats));
   order_composite(q, 4, ctx);
   for (int c = 0; c < 3; ++c) {
     f.c1[c] = ctx.k.c1[c];
@@ -1712,7 +1723,6 @@ FrozenQuery Encoder::frozen_query(const float* texel_in) const {
   }
   f.stats = std::move(q.stats);
   f.candidates = std::move(ctx.order);
-  return f;
 }
 
 // The texel query of a FrozenQuery, borrowing its values and window statistics.

@@ -127,6 +127,9 @@ class Encoder {
   // The pieces of encode_frozen() for the batched search (pipeline/encode/frozen_search.h):
   // the texel as the comparison sees it, with its candidates;
   FrozenQuery frozen_query(const float* texel) const;
+  // the same into `into`, reusing its buffers (a batch refills the same queries tile after tile:
+  // fresh half-megabyte buffers per texel cost more in page faults than the copies themselves);
+  void frozen_query(const float* texel, FrozenQuery& into) const;
   // the exact search among `order` that only accepts scores >= floor (throws InputError if none
   // does): equal to encode_frozen() whenever the best candidate's score is >= floor and in `order`;
   P6Entry encode_frozen_among(const FrozenQuery& query, const std::vector<uint32_t>& order, double floor) const;
@@ -208,7 +211,8 @@ class Encoder {
   std::vector<Speculation> speculate(const std::vector<Query>& parts, int level, double threshold, Ctx& ctx) const;
   Match confirm(const Query& q, int level, double bound, const Speculation& s, Ctx& ctx) const;
   void check_frozen() const;
-  Query texel_query(const std::vector<float>& texel, Ctx& ctx) const;
+  // `stats`: a buffer to hold the window statistics (its capacity is reused).
+  Query texel_query(const std::vector<float>& texel, Ctx& ctx, std::vector<float> stats = {}) const;
   P6Entry frozen_entry(const Query& q, const Match& best) const;
   Match search_p2(const Query& q, double bound, Ctx& ctx) const;
   Match search_i2(const Query& q, double bound, Ctx& ctx) const;

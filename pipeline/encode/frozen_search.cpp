@@ -413,8 +413,9 @@ void FrozenSearch::encode_pruned(const float* texels, size_t n, P6Entry* out) {
 void FrozenSearch::encode_batched(const float* texels, size_t n, P6Entry* out) {
   const size_t values = 3 * encoder_.codebooks().grid.samples();
   auto t0 = std::chrono::steady_clock::now();
-  std::vector<FrozenQuery> queries(n);
-  parallel(n, [&](size_t i) { queries[i] = encoder_.frozen_query(texels + i * values); });
+  std::vector<FrozenQuery>& queries = queries_;
+  queries.resize(n);
+  parallel(n, [&](size_t i) { encoder_.frozen_query(texels + i * values, queries[i]); });
   const size_t slots = n ? queries[0].candidates.size() : 0;
   std::vector<uint32_t> candidates;
   candidates.reserve(n * slots);

@@ -86,6 +86,7 @@ class FrozenSearch {
   std::vector<float> entry_yy_;              // per P4 entry: the least-squares denominator
   size_t entries_ = 0;                       // P4 entries taken in
   std::unique_ptr<Device> device_;
+  std::vector<FrozenQuery> queries_;  // encode_batched's, kept so that each batch refills the same buffers
   SearchStats stats_;
 };
 
