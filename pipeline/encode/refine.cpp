@@ -5,6 +5,7 @@
 #include <future>
 #include <limits>
 #include <map>
+#include <stdexcept>
 
 #include <btfvq/error.h>
 #include <spdlog/spdlog.h>
@@ -13,23 +14,30 @@
 
 namespace btfvq {
 
+void TilePrefetch::fetch(const uint32_t* ids, size_t n) {
+  if (pending_.valid()) throw std::logic_error("TilePrefetch: fetch() before the last fetch was taken");
+  filling_ ^= 1;
+  std::vector<float>& b = buffers_[filling_];
+  pending_ = std::async(std::launch::async, [this, &b, ids, n] {
+    b.resize(n * values_);
+    source_(ids, n, b.data());
+  });
+}
+
+const float* TilePrefetch::take() {
+  pending_.get();  // rethrows the source's error
+  return buffers_[filling_].data();
+}
+
 void for_each_tile(const uint32_t* ids, size_t count, const TexelSource& source, size_t tile, size_t values,
                    const std::function<void(size_t at, size_t n, const float* x)>& f) {
   tile = std::max<size_t>(tile, 1);
-  std::vector<float> buffers[2];
-  auto fetch = [&](size_t at) {
-    std::vector<float>& b = buffers[(at / tile) % 2];
-    const size_t n = std::min(tile, count - at);
-    b.resize(n * values);
-    source(ids + at, n, b.data());
-  };
-  if (count == 0) return;
-  // Declared after the buffers: should f throw, its destructor waits for the prefetch before they go.
-  std::future<void> next = std::async(std::launch::async, fetch, size_t(0));
+  TilePrefetch tiles(source, values);
+  if (count > 0) tiles.fetch(ids, std::min(tile, count));
   for (size_t at = 0; at < count; at += tile) {
-    next.get();  // the tile's texels (rethrows the source's error)
-    if (at + tile < count) next = std::async(std::launch::async, fetch, at + tile);
-    f(at, std::min(tile, count - at), buffers[(at / tile) % 2].data());
+    const float* x = tiles.take();
+    if (at + tile < count) tiles.fetch(ids + at + tile, std::min(tile, count - at - tile));
+    f(at, std::min(tile, count - at), x);
   }
 }
 

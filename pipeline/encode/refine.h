@@ -18,6 +18,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <functional>
+#include <future>
 #include <vector>
 
 #include "pipeline/codebook.h"
@@ -53,9 +54,28 @@ struct RefineSettings {
 // Resamples the given texels (ids y * width + x) into out (n x 3 x grid.samples() floats).
 using TexelSource = std::function<void(const uint32_t* texel_ids, size_t n, float* out)>;
 
+// Resamples tiles ahead of their use: fetch() starts the source on another thread into one of two
+// buffers, take() waits for that fetch and returns its texels (n x `values` floats), which stay
+// valid until the fetch after the next. One source call at a time and in order (take() before the
+// next fetch()), so memory holds two tiles; the source's error comes out of take().
+class TilePrefetch {
+ public:
+  TilePrefetch(const TexelSource& source, size_t values) : source_(source), values_(values) {}
+  void fetch(const uint32_t* ids, size_t n);
+  const float* take();
+
+ private:
+  const TexelSource& source_;
+  size_t values_;
+  std::vector<float> buffers_[2];
+  int filling_ = 1;  // the buffer of the last fetch
+  // Declared after the buffers: destroyed first, it waits for a fetch in flight before they go.
+  std::future<void> pending_;
+};
+
 // Calls f(at, n, x) for the tiles of `tile` texels of ids[0, count) in order, x the n texels
-// resampled (n x `values` floats); the next tile is resampled on another thread meanwhile, one source
-// call at a time and in order, so memory holds two tiles. An error of f or of the source ends it.
+// resampled (n x `values` floats); the next tile is resampled meanwhile (TilePrefetch). An error of
+// f or of the source ends it.
 void for_each_tile(const uint32_t* ids, size_t count, const TexelSource& source, size_t tile, size_t values,
                    const std::function<void(size_t at, size_t n, const float* x)>& f);
 

@@ -4,7 +4,6 @@
 #include <chrono>
 #include <cmath>
 #include <ctime>
-#include <future>
 #include <memory>
 
 #include <btfvq/error.h>
@@ -190,25 +189,19 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
       tiles.push_back({phase, at, std::min(tile, bounds[phase] - at)});
   const size_t first_phase3 = size_t(std::count_if(tiles.begin(), tiles.end(), [](const Tile& t) { return t.phase < 3; }));
   const size_t start = resume ? std::min(tiles.size(), first_phase3 + resume->tiles_done) : 0;
-  std::vector<float> buffers[2];
-  auto resample = [&](size_t k) {
-    std::vector<float>& buffer = buffers[k % 2];
-    buffer.resize(tiles[k].n * 3 * samples);
-    source(order.data() + tiles[k].at, tiles[k].n, buffer.data());
-  };
-  std::future<void> next;
-  if (start < tiles.size()) next = std::async(std::launch::async, resample, start);
+  TilePrefetch prefetch(source, 3 * samples);
+  auto fetch = [&](size_t k) { prefetch.fetch(order.data() + tiles[k].at, tiles[k].n); };
+  if (start < tiles.size()) fetch(start);
 
   auto t0 = std::chrono::steady_clock::now();
   double cpu0 = process_cpu_seconds();
   for (size_t k = start; k < tiles.size(); ++k) {
     const auto [phase, at, n] = tiles[k];
-    next.get();  // the tile's texels (rethrows the source's error)
+    const float* texels = prefetch.take();  // the tile's texels (rethrows the source's error)
     if (cancelled && cancelled()) throw CancelledError("encoding cancelled in phase " + std::to_string(phase));
     const size_t from = phase == 3 ? phase3_from : bounds[phase - 1];
     if (phase == 3 && at == from && refining && !resume) refine();  // before the next prefetch: one source call at a time
-    if (k + 1 < tiles.size()) next = std::async(std::launch::async, resample, k + 1);
-    const float* texels = buffers[k % 2].data();
+    if (k + 1 < tiles.size()) fetch(k + 1);
     if (at == from || k == start) {
       t0 = std::chrono::steady_clock::now();
       cpu0 = process_cpu_seconds();
