@@ -1,5 +1,7 @@
 #include <doctest/doctest.h>
 
+#include <atomic>
+#include <future>
 #include <numeric>
 #include <vector>
 
@@ -251,4 +253,51 @@ TEST_CASE("the shipped schedule refines: phase 3 assigns every texel, closer tha
     CHECK(v.p6_index == r.p6_index);
     CHECK(v.p6_scale == r.p6_scale);
   }
+}
+
+TEST_CASE("tiles arrive in order with their own texels, one source call at a time; a source error reaches the caller") {
+  // A source whose values name the texel and position, and that notes overlapping calls.
+  std::atomic<int> inside{0};
+  bool overlapped = false;
+  std::vector<size_t> calls;
+  const TexelSource source = [&](const uint32_t* ids, size_t n, float* out) {
+    overlapped = overlapped || inside.fetch_add(1) > 0;
+    calls.push_back(n);
+    for (size_t i = 0; i < n; ++i)
+      for (size_t v = 0; v < 3; ++v) out[i * 3 + v] = float(ids[i] * 10 + v);
+    inside.fetch_sub(1);
+  };
+  std::vector<uint32_t> ids(23);
+  for (size_t i = 0; i < ids.size(); ++i) ids[i] = uint32_t(100 + 7 * i);
+  std::vector<size_t> seen;
+  for_each_tile(ids.data(), ids.size(), source, 5, 3, [&](size_t at, size_t n, const float* x) {
+    CHECK(at == seen.size());
+    for (size_t i = 0; i < n; ++i) {
+      seen.push_back(at + i);
+      for (size_t v = 0; v < 3; ++v) CHECK(x[i * 3 + v] == float(ids[at + i] * 10 + v));
+    }
+  });
+  CHECK(seen.size() == ids.size());
+  CHECK(calls == std::vector<size_t>{5, 5, 5, 5, 3});
+  CHECK_FALSE(overlapped);
+
+  // A taken tile stays valid while the next one is fetched.
+  TilePrefetch prefetch(source, 3);
+  prefetch.fetch(ids.data(), 4);
+  const float* first = prefetch.take();
+  prefetch.fetch(ids.data() + 4, 4);
+  CHECK(first[0] == float(ids[0] * 10));
+  const float* second = prefetch.take();
+  CHECK(second[0] == float(ids[4] * 10));
+  CHECK(first[3 * 3] == float(ids[3] * 10));
+  CHECK_THROWS_AS(prefetch.take(), std::future_error);  // nothing fetched
+
+  const TexelSource broken = [](const uint32_t*, size_t, float*) { throw InputError("damaged sample"); };
+  size_t visited = 0;
+  CHECK_THROWS_AS(for_each_tile(ids.data(), ids.size(), broken, 5, 3, [&](size_t, size_t, const float*) { ++visited; }),
+                  InputError);
+  CHECK(visited == 0);
+  TilePrefetch again(broken, 3);
+  again.fetch(ids.data(), 2);
+  CHECK_THROWS_AS(again.take(), InputError);
 }
