@@ -339,7 +339,7 @@ bool is_pca(const std::string& method) { return method.find("PCA") != std::strin
 struct Matched {
   std::string text;  // one markdown line
   nlohmann::json json;
-  int below_2x = 0, compared = 0, bounded = 0;  // bounded: factors that are only upper bounds
+  int below_2x = 0, bounded = 0;  // bounded: factors that are only upper bounds
 };
 
 // At each btfvq point's MSSIM: btfvq's ratio over the best PCA baseline's interpolated ratio. Where
@@ -384,7 +384,6 @@ Matched matched_mssim(const std::vector<Point>& points, const std::function<bool
     line << buf;
   }
   out.below_2x = compared - at_least_2x;
-  out.compared = compared;
   std::string s = line.str();
   if (s.size() >= 2) s.resize(s.size() - 2);
   out.text = s + (compared ? (at_least_2x == compared ? (out.bounded ? " -- upper bounds only: 2x is not established."

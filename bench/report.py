@@ -18,6 +18,7 @@ def main():
     ap.add_argument("--out", required=True)
     ap.add_argument("--json", required=True)
     ap.add_argument("--command", required=True)
+    ap.add_argument("--commit", required=True, help="the commit as bench/run.sh names it (with \" (dirty)\")")
     a = ap.parse_args()
     sections = []
     for f in sorted(os.listdir(a.results)):
@@ -33,9 +34,7 @@ def main():
         "compiler": sh("c++ --version | head -1"),
         "opencl": sh("clinfo -l 2>/dev/null | tr '\\n' ' '"),
     }
-    # The bench's own outputs (this file, the sections just written) do not make the code dirty.
-    dirty = sh("git status --porcelain --untracked-files=no -- . ':!BENCHMARKS.md' ':!bench/results'")
-    commit = sh("git rev-parse --short HEAD") + (" (dirty)" if dirty else "")
+    commit = a.commit
     when = datetime.datetime.utcnow().strftime("%Y-%m-%d %H:%M UTC")
     lines = ["# btfvq benchmarks", "",
              f"Assembled by `{a.command}` (bench/run.sh) on {when}, commit {commit}; each section says "

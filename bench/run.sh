@@ -43,6 +43,6 @@ with open(dst, "w") as fh:
     json.dump(s, fh, indent=1)
 PY
 done
-python3 "$root/bench/report.py" --results "$sections" --out "$root/BENCHMARKS.md" --json "$root/bench/results/latest.json" \
+python3 "$root/bench/report.py" --results "$sections" --out "$root/BENCHMARKS.md" --json "$root/bench/results/latest.json" --commit "$commit" \
   --command "make bench${extra:+ BENCH_ARGS=\"${extra[*]}\"}${BENCH_ONLY:+ (BENCH_ONLY=$BENCH_ONLY)}"
 echo "wrote BENCHMARKS.md and bench/results/latest.json" >&2
