@@ -35,6 +35,7 @@
 #include "bench/bench_common.h"
 #include "pipeline/util/atomic_file.h"
 #include "pipeline/io/btfbase.h"
+#include "pipeline/encode/ceiling.h"
 #include "pipeline/encode/compress.h"
 #include "pipeline/encode/quality.h"
 #include "pipeline/io/sample_io.h"
@@ -729,7 +730,7 @@ int main(int argc, char** argv) {
     const Matched m = matched_mssim(points, is_pca);
     const Matched per_view = matched_mssim(points, [](const std::string& method) { return method == "per-view PCA"; });
     const EvaluationReport ceiling =
-        evaluate(sample, baselines::resampled_roundtrip(sample, ParameterDictionary::embedded_default("pipeline")));
+        evaluate(sample, parametrization_roundtrip(sample, ParameterDictionary::embedded_default("pipeline")));
     write_plot(args, key, title, points, ceiling.mssim_y);
     double lo = 1, hi = 0;
     for (const auto& p : points)

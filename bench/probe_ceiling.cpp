@@ -5,7 +5,7 @@
 #include <cstdio>
 
 #include <btfvq/error.h>
-#include "bench/baselines/texel_vq.h"
+#include "pipeline/encode/ceiling.h"
 #include "pipeline/io/sample_io.h"
 #include "pipeline/metrics/metrics.h"
 
@@ -19,7 +19,7 @@ int main(int argc, char** argv) {
   try {
     const MeasuredSample sample = load_sample(argv[1]);
     const EvaluationReport e =
-        evaluate(sample, baselines::resampled_roundtrip(sample, ParameterDictionary::embedded_default("pipeline")));
+        evaluate(sample, parametrization_roundtrip(sample, ParameterDictionary::embedded_default("pipeline")));
     std::printf("%s\tceiling MSSIM %.4f\tPSNR %.2f dB\tCIEDE2000 %.3f\n", argv[1], e.mssim_y, e.psnr, e.ciede2000_mean);
     return 0;
   } catch (const std::exception& e) {

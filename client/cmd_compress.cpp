@@ -99,7 +99,11 @@ void print_summary(const std::string& out, const DatabaseSummary& s) {
       const std::string metric = t["metric"];
       std::cout << "  " << r.material << ": target " << (metric == "mssim" ? "MSSIM " : "BTF-CIELab mean ")
                 << t[metric].get<double>() << ", achieved " << t["achieved"].get<double>()
-                << (t["reached"].get<bool>() ? "" : " (not reached)") << " at quality " << t["quality"].get<double>()
+                << (t["reached"].get<bool>() ? "" : " (not reached)");
+      if (t.contains("ceiling") && t["aimed"] != t[metric])
+        std::cout << " (above the parametrization's ceiling " << t["ceiling"].get<double>() << ": aimed at "
+                  << t["aimed"].get<double>() << ")";
+      std::cout << " at quality " << t["quality"].get<double>()
                 << ", ratio 1:" << t["ratio"].get<double>() << ", after " << t["attempts"].size() << " compression(s)\n";
     }
     if (r.json.contains("resumed")) std::cout << "  " << r.material << ": " << r.json["resumed"].get<std::string>() << "\n";

@@ -5,6 +5,7 @@
 
 #include <btfvq/error.h>
 #include "pipeline/decode/reconstruct.h"
+#include "pipeline/encode/ceiling.h"
 #include "pipeline/encode/compress.h"
 #include "pipeline/encode/target.h"
 #include "pipeline/format/database.h"
@@ -55,19 +56,49 @@ TEST_CASE("target MSSIM: the database keeps an attempt that reaches it, and says
     if (a["mssim"].get<double>() >= t.value) CHECK(a["bytes"].get<uint64_t>() >= serialize_database(db).size());
 }
 
-TEST_CASE("target MSSIM out of reach: the closest attempt, marked not reached; a bad target changes nothing") {
+TEST_CASE("target MSSIM above the parametrization's ceiling: aims at the ceiling minus 0.03, marked not reached") {
   const MeasuredSample sample = leather16();
+  const double ceiling =
+      evaluate(sample, parametrization_roundtrip(sample, ParameterDictionary::embedded_default("pipeline"))).mssim_y;
+  REQUIRE(ceiling < 0.995);
   QualityTarget t;
   t.value = 0.999;
-  t.max_attempts = 2;
+  t.max_attempts = 3;
   Database db;
   const CompressReport r = compress_to_target(db, sample, "m", t, {});
   const auto& j = r.json["target"];
   CHECK_FALSE(j["reached"].get<bool>());
+  CHECK(j["ceiling"].get<double>() == doctest::Approx(ceiling).epsilon(1e-12));
+  CHECK(j["aimed"].get<double>() == doctest::Approx(ceiling - kCeilingMargin).epsilon(1e-12));
+  CHECK(independent_mssim(db, sample) == doctest::Approx(j["achieved"].get<double>()).epsilon(1e-9));
+  // No quality beats the round trip without quantization.
   double best = 0;
-  for (const auto& a : j["attempts"]) best = std::max(best, a["mssim"].get<double>());
-  CHECK(j["achieved"].get<double>() == best);
-  CHECK(j["attempts"].size() == 2);
+  for (const auto& a : j["attempts"]) {
+    CHECK(a["mssim"].get<double>() <= ceiling + 1e-9);
+    best = std::max(best, a["mssim"].get<double>());
+  }
+  // Kept: of the attempts at or over the aim the one with the fewest bytes, else the closest.
+  const double aimed = j["aimed"].get<double>();
+  if (best >= aimed) {
+    CHECK(j["achieved"].get<double>() >= aimed);
+    for (const auto& a : j["attempts"])
+      if (a["mssim"].get<double>() >= aimed) CHECK(a["bytes"].get<uint64_t>() >= serialize_database(db).size());
+  } else {
+    CHECK(j["achieved"].get<double>() == best);
+  }
+}
+
+TEST_CASE("target MSSIM: a target the first attempt reaches measures no ceiling; a bad target changes nothing") {
+  const MeasuredSample sample = leather16();
+  QualityTarget t;
+  t.value = 0.3;
+  t.max_attempts = 1;
+  Database db;
+  const CompressReport r = compress_to_target(db, sample, "m", t, {});
+  const auto& j = r.json["target"];
+  CHECK(j["reached"].get<bool>());
+  CHECK(j["aimed"].get<double>() == 0.3);
+  CHECK_FALSE(j.contains("ceiling"));
 
   Database untouched;
   for (double bad : {0.0, 1.0, -0.5}) {

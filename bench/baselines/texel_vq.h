@@ -24,15 +24,6 @@ struct TexelVqOptions {
 // map of `texels` texels.
 uint64_t texel_vq_bytes(size_t texels, size_t samples, int entries);
 
-// A resampled texel (3 x grid.samples() values, [channel][AngularGrid::index], LDR coding space)
-// evaluated at a (light, view) pair exactly as Decoder::evaluate_p4 interpolates: luminance cubic
-// Hermite along beta and chroma linear along beta, then linear in alpha, theta_v and phi_v (wrapping).
-Rgb evaluate_resampled(const float* texel, const AngularGrid& grid, const Direction& light, const Direction& view);
-
-// Every texel resampled and decoded back at the measured directions, without any quantization: the
-// quality ceiling of every method built on the parametrization (btfvq and one-level VQ).
-MeasuredSample resampled_roundtrip(const MeasuredSample& sample, const ParameterDictionary& config);
-
 // Resamples `sample` (LDR; else InputError) with the grid and resample settings of `config` (a
 // pipeline configuration) and hands `sink` one point per code-book size in `entries` (each >= 1).
 void texel_vq(const MeasuredSample& sample, const ParameterDictionary& config, const std::vector<int>& entries,

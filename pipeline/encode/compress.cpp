@@ -37,9 +37,7 @@ struct PipelineSettings {
 PipelineSettings read_settings(const ParameterDictionary& config) {
   PipelineSettings s;
   s.device = config.string("device");
-  s.grid = {config.integer("grid.n_beta", 3, 1024), config.integer("grid.n_alpha", 2, 1024),
-            config.integer("grid.n_theta_v", 2, 1024), config.integer("grid.n_phi_v", 1, 1024)};
-  s.grid.validate();
+  s.grid = grid_settings(config);
   s.resample = ResampleSettings::from(config);
   s.similarity = SimilaritySettings::from(config);
   s.thresholds = Thresholds::from(config, s.similarity.metric);

@@ -23,6 +23,13 @@ ResampleSettings ResampleSettings::from(const ParameterDictionary& config) {
   return s;
 }
 
+AngularGrid grid_settings(const ParameterDictionary& config) {
+  AngularGrid g{config.integer("grid.n_beta", 3, 1024), config.integer("grid.n_alpha", 2, 1024),
+                config.integer("grid.n_theta_v", 2, 1024), config.integer("grid.n_phi_v", 1, 1024)};
+  g.validate();
+  return g;
+}
+
 ResampleSettings ResampleSettings::defaults() { return from(ParameterDictionary::embedded_default("pipeline")); }
 
 namespace {

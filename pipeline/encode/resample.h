@@ -44,6 +44,9 @@ struct ResampleSettings {
   static ResampleSettings defaults();  // from(the shipped configs/pipeline.json)
 };
 
+// The "grid" section of a pipeline configuration: the angular grid texels are resampled onto.
+AngularGrid grid_settings(const ParameterDictionary& config);
+
 // One entry of a sparse row: a column index (a measured pair, or a slot) and its weight.
 struct SparseEntry {
   uint32_t index = 0;

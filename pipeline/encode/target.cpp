@@ -8,6 +8,7 @@
 
 #include <btfvq/error.h>
 #include "pipeline/decode/reconstruct.h"
+#include "pipeline/encode/ceiling.h"
 #include "pipeline/encode/quality.h"
 #include "pipeline/format/database.h"
 #include "pipeline/metrics/btf_cielab.h"
@@ -90,6 +91,10 @@ CompressReport compress_to_target(Database& db, const MeasuredSample& sample, co
                                   const QualityTarget& target, const CompressOptions& options) {
   const MetricSpec metric = metric_of(target);
   const double goal = metric.direction * target.value;
+  // What the search aims at: the target, or a little under the parametrization's ceiling where
+  // the target lies above what any quality can give (measured once the first attempt misses).
+  double aim = goal;
+  std::optional<double> ceiling;
   std::vector<Attempt> tried;
   // Only the kept attempt's database and report are held: a copy of the code-books each.
   Attempt best;
@@ -111,15 +116,19 @@ CompressReport compress_to_target(Database& db, const MeasuredSample& sample, co
     const double value = metric.score(sample, reconstruct_sample(trial, name, sample));
     const Attempt a{q, metric.direction * value, serialize_database(trial).size()};
     tried.push_back(a);
-    if (tried.size() == 1 || better(a, best, goal)) {
+    if (k == 0 && a.goodness < goal && target.metric == TargetMetric::Mssim && !sample.is_hdr()) {
+      ceiling = metric.score(sample, parametrization_roundtrip(sample, o.config));
+      aim = std::min(goal, metric.direction * *ceiling - kCeilingMargin);
+    }
+    if (tried.size() == 1 || better(a, best, aim)) {
       best = a;
       best_db = std::move(trial);
       best_report = std::move(report);
     }
-    if (a.goodness >= goal && a.goodness - goal <= metric.tolerance) break;
-    if (a.goodness < goal && q >= 100) break;  // nothing higher to try
-    if (a.goodness >= goal && q <= 0) break;
-    const double next = next_quality(tried, goal, metric.slope);
+    if (a.goodness >= aim && a.goodness - aim <= metric.tolerance) break;
+    if (a.goodness < aim && q >= 100) break;  // nothing higher to try
+    if (a.goodness >= aim && q <= 0) break;
+    const double next = next_quality(tried, aim, metric.slope);
     bool seen = false;
     for (const Attempt& t : tried) seen = seen || std::abs(t.quality - next) < 0.5;
     if (seen) break;
@@ -134,9 +143,11 @@ CompressReport compress_to_target(Database& db, const MeasuredSample& sample, co
        {"achieved", metric.direction * best.goodness},
        {"quality", best.quality},
        {"reached", best.goodness >= goal},
+       {"aimed", metric.direction * aim},
        {"bytes", best.bytes},
        {"ratio", compression_ratio(raw_bytes(best_db), best.bytes)},
        {"attempts", attempts}};
+  if (ceiling) j["ceiling"] = *ceiling;
   if (target.metric == TargetMetric::BtfCielab) {
     j["resolution"] = target.condition.resolution;
     j["speed"] = target.condition.speed;

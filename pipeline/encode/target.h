@@ -23,11 +23,18 @@ inline constexpr double kMinTargetBtfCielab = 0.01, kMaxTargetBtfCielab = 100;
 inline constexpr double kMssimTolerance = 0.005;     // MSSIM units
 inline constexpr double kBtfCielabTolerance = 0.1;   // CIEDE2000 units
 
+// A target MSSIM above the parametrization's ceiling (pipeline/encode/ceiling.h) minus this is
+// not reachable at any quality: the search aims at the ceiling minus this instead, the rule of
+// "every preset reaches 0.90 or its ceiling minus 0.03" (docs/encoder.md "Target").
+inline constexpr double kCeilingMargin = 0.03;  // MSSIM units
+
 // compress_material() at the quality that reaches `target` (InputError for an MSSIM target outside
 // (0, 1), a BTF-CIELab target not > 0). The report's json gains "target": {metric ("mssim" or
-// "btf_cielab"), the target under the metric's name, achieved, quality, reached, bytes, ratio,
-// attempts: [{quality, <metric>, bytes}]}, and for BTF-CIELab the viewing condition (resolution,
-// speed).
+// "btf_cielab"), the target under the metric's name, achieved, quality, reached (the target),
+// aimed (the target, or the ceiling minus kCeilingMargin below it), bytes, ratio, attempts:
+// [{quality, <metric>, bytes}]}, "ceiling" when it was measured (an MSSIM target the first attempt,
+// at the default quality, misses; LDR samples), and for BTF-CIELab the viewing condition
+// (resolution, speed).
 CompressReport compress_to_target(Database& db, const MeasuredSample& sample, const std::string& name,
                                   const QualityTarget& target, const CompressOptions& options);
 
