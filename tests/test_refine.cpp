@@ -1,6 +1,8 @@
 #include <doctest/doctest.h>
 
+#include <algorithm>
 #include <atomic>
+#include <cmath>
 #include <future>
 #include <numeric>
 #include <vector>
@@ -199,6 +201,80 @@ TEST_CASE("merging within a budget: the cheapest merges are kept, fewer as the b
   // What the budget allows is a bound on the estimate, and the refits after the merges only lower the
   // error: the partly merged step ends within the budget of the unmerged one (plus the refits' slack).
   CHECK(some.mse_after <= zero.mse_after + 4 * 0.02 * some.mse_before);
+}
+
+// The merges as docs/encoder.md defines them, one row after the other against every leader:
+// the independent reference of merge_leaders.
+std::vector<uint32_t> exhaustive_leaders(const std::vector<float>& rows, size_t dim, const std::vector<double>& w,
+                                         double radius, double budget) {
+  const size_t n = w.size();
+  std::vector<uint32_t> leader(n), order, leaders;
+  std::iota(leader.begin(), leader.end(), 0u);
+  double mean_weight = 0;
+  for (uint32_t r = 0; r < n; ++r)
+    if (w[r] > 0) {
+      order.push_back(r);
+      mean_weight += w[r];
+    }
+  mean_weight /= double(order.size());
+  std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return w[a] > w[b]; });
+  std::vector<std::pair<double, uint32_t>> merges;
+  for (uint32_t r : order) {
+    double best = radius * radius * mean_weight / w[r];
+    int64_t chosen = -1;
+    for (uint32_t l : leaders) {  // in the order they became leaders: the first of equals wins
+      double d = 0;
+      for (size_t v = 0; v < dim; ++v) d += double(rows[r * dim + v] - rows[l * dim + v]) * (rows[r * dim + v] - rows[l * dim + v]);
+      if (d < best || (d == best && chosen < 0)) {
+        best = d;
+        chosen = l;
+      }
+    }
+    if (chosen < 0) {
+      leaders.push_back(r);
+    } else {
+      leader[r] = uint32_t(chosen);
+      merges.emplace_back(w[r] * best, r);
+    }
+  }
+  std::sort(merges.begin(), merges.end());
+  double spent = 0;
+  for (const auto& [cost, r] : merges)
+    if ((spent += cost) > budget) leader[r] = r;
+  return leader;
+}
+
+TEST_CASE("merge_leaders is the row-by-row search over every leader, on any thread count") {
+  // 2,000 rows of 12 values around 40 centres (several batches of rows), with exact copies, rows
+  // of weight 0 and weights spread over three decades.
+  const size_t n = 2000, dim = 12;
+  uint64_t state = 12345;
+  auto uniform = [&] {
+    state = state * 6364136223846793005ull + 1442695040888963407ull;
+    return double(state >> 11) / double(1ull << 53);
+  };
+  std::vector<float> centres(40 * dim);
+  for (float& c : centres) c = float(uniform() * 10);
+  std::vector<float> rows(n * dim);
+  std::vector<double> w(n);
+  for (size_t r = 0; r < n; ++r) {
+    const size_t c = size_t(uniform() * 40);
+    for (size_t v = 0; v < dim; ++v) rows[r * dim + v] = centres[c * dim + v] + float(uniform() - 0.5);
+    if (r % 97 == 5) std::copy_n(&rows[(r - 5) * dim], dim, &rows[r * dim]);
+    w[r] = r % 53 == 0 ? 0.0 : std::pow(10.0, 3 * uniform());
+  }
+  for (double radius : {0.05, 0.3, 1.0}) {
+    for (double budget : {1e300, 50.0, 0.0}) {
+      CAPTURE(radius);
+      CAPTURE(budget);
+      const std::vector<uint32_t> expected = exhaustive_leaders(rows, dim, w, radius, budget);
+      const size_t merged = n - size_t(std::count_if(expected.begin(), expected.end(), [i = 0u](uint32_t l) mutable { return l == i++; }));
+      if (budget > 1) CHECK(merged > 0);  // the case exercises merges
+      CHECK(merge_leaders(rows, dim, w, radius, budget, 1) == expected);
+      CHECK(merge_leaders(rows, dim, w, radius, budget, 2) == expected);
+    }
+  }
+  CHECK_THROWS_AS(merge_leaders(rows, dim + 1, w, 0.3, 1e300), InputError);
 }
 
 TEST_CASE("refine_step rejects an assignment that does not fit the code-books") {

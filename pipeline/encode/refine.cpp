@@ -167,17 +167,76 @@ double lower_sums(const Codebooks& k, const CodebookSizes& first, Dynamic dyn, c
   return error;
 }
 
-// Which row each row merges into. Rows (dim values each) are taken heaviest first; a row joins the
-// nearest leader within its reach, radius^2 x mean weight / its weight (the error a merge adds is
-// the row's weight times the squared distance, so heavy rows merge only when close, light ones
-// readily), else it leads. Rows of weight 0 (no texel reaches them) stay themselves. Two rows are
-// at least sqrt(dim) times the difference of their means apart, so the leaders are searched
-// outward from the row's mean until that bound passes the nearest found. Of the merges found, the
-// cheapest are kept while their added error stays within `budget`; the rest stay themselves (a
-// follower leads nobody, so dropping its merge changes no other row's).
-std::vector<uint32_t> leaders_of(const std::vector<float>& rows, size_t dim, const std::vector<double>& weight,
-                                 double radius, double budget) {
+// The leaders found so far, sorted by mean, with a copy of their rows in that order (a search walks
+// them contiguously). seq: the order in which they became leaders; a tie goes to the earliest.
+class LeaderSet {
+ public:
+  explicit LeaderSet(size_t dim) : dim_(dim) {}
+
+  struct Found {
+    double d;
+    uint32_t seq = UINT32_MAX;  // UINT32_MAX: none within reach
+  };
+
+  // The nearest leader to x (mean m) within `reach`. Two rows are at least sqrt(dim) times the
+  // difference of their means apart, so the search runs outward from m until that bound passes
+  // the nearest found (with a margin for rounding: the result is the exhaustive search's).
+  Found nearest(const float* x, double m, double reach) const {
+    Found f{reach};
+    const size_t start = size_t(std::lower_bound(mean_.begin(), mean_.end(), m) - mean_.begin());
+    auto far = [&](size_t i) { return double(dim_) * (mean_[i] - m) * (mean_[i] - m) > f.d * (1 + 1e-9); };
+    for (size_t i = start; i < mean_.size() && !far(i); ++i) consider(x, &rows_[i * dim_], seq_[i], f);
+    for (size_t i = start; i-- > 0 && !far(i);) consider(x, &rows_[i * dim_], seq_[i], f);
+    return f;
+  }
+
+  // Considers leader y (seq) for x: nearer, or as near and earlier, than f.
+  void consider(const float* x, const float* y, uint32_t seq, Found& f) const {
+    double d = 0;
+    for (size_t v = 0; v < dim_ && d <= f.d; ++v) d += double(x[v] - y[v]) * (x[v] - y[v]);
+    if (d < f.d || (d == f.d && seq < f.seq)) f = {d, seq};
+  }
+
+  // Adds leaders (row values, mean) whose seq continue the set's.
+  void add(const std::vector<const float*>& rows, const std::vector<double>& means) {
+    std::vector<size_t> order(mean_.size() + means.size());
+    for (size_t i = 0; i < order.size(); ++i) order[i] = i;
+    auto mean_of = [&](size_t i) { return i < mean_.size() ? mean_[i] : means[i - mean_.size()]; };
+    std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return mean_of(a) < mean_of(b); });
+    std::vector<double> mean(order.size());
+    std::vector<uint32_t> seq(order.size());
+    std::vector<float> values(order.size() * dim_);
+    for (size_t k = 0; k < order.size(); ++k) {
+      const size_t i = order[k];
+      mean[k] = mean_of(i);
+      seq[k] = i < mean_.size() ? seq_[i] : uint32_t(count_ + (i - mean_.size()));
+      const float* y = i < mean_.size() ? &rows_[i * dim_] : rows[i - mean_.size()];
+      std::copy(y, y + dim_, &values[k * dim_]);
+    }
+    count_ += means.size();
+    mean_.swap(mean);
+    seq_.swap(seq);
+    rows_.swap(values);
+  }
+
+  size_t count() const { return count_; }
+
+ private:
+  size_t dim_, count_ = 0;
+  std::vector<double> mean_;
+  std::vector<uint32_t> seq_;
+  std::vector<float> rows_;
+};
+
+}  // namespace
+
+// Rows are taken in batches: each row of a batch finds its nearest leader among those before the
+// batch in parallel, then the batch is settled in order against the leaders it made itself, so the
+// result is the row-by-row one for any thread count and batch size.
+std::vector<uint32_t> merge_leaders(const std::vector<float>& rows, size_t dim, const std::vector<double>& weight,
+                                    double radius, double budget, size_t threads) {
   const size_t n = weight.size();
+  if (rows.size() != n * dim) throw InputError("merge_leaders: rows and weights differ in number");
   std::vector<uint32_t> leader(n);
   for (size_t r = 0; r < n; ++r) leader[r] = uint32_t(r);
   std::vector<uint32_t> order;
@@ -190,42 +249,44 @@ std::vector<uint32_t> leaders_of(const std::vector<float>& rows, size_t dim, con
   if (order.empty() || !(radius > 0)) return leader;
   mean_weight /= double(order.size());
   std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return weight[a] > weight[b]; });
-  std::vector<float> mean(n, 0.0f);
+  std::vector<double> mean(n, 0.0);
   for (size_t r = 0; r < n; ++r) {
     double sum = 0;
     for (size_t v = 0; v < dim; ++v) sum += rows[r * dim + v];
-    mean[r] = float(sum / double(dim));
+    mean[r] = sum / double(dim);
   }
-  std::multimap<float, uint32_t> leaders;  // by mean
+  auto reach = [&](uint32_t r) { return radius * radius * mean_weight / weight[r]; };
+
+  constexpr size_t kBatch = 256;
+  LeaderSet leaders(dim);
+  std::vector<uint32_t> by_seq;  // row of each leader
+  std::vector<LeaderSet::Found> found(kBatch);
   std::vector<std::pair<double, uint32_t>> merges;  // (added error, row)
-  for (uint32_t r : order) {
-    const float* x = &rows[size_t(r) * dim];
-    double best = radius * radius * mean_weight / weight[r];  // the reach
-    uint32_t chosen = UINT32_MAX;
-    auto consider = [&](uint32_t l) {
-      const float* y = &rows[size_t(l) * dim];
-      double d = 0;
-      for (size_t v = 0; v < dim && d <= best; ++v) d += double(x[v] - y[v]) * (x[v] - y[v]);
-      if (d <= best) {
-        best = d;
-        chosen = l;
+  for (size_t at = 0; at < order.size(); at += kBatch) {
+    const size_t count = std::min(kBatch, order.size() - at);
+    parallel_for(0, count, [&](size_t j) {
+      const uint32_t r = order[at + j];
+      found[j] = leaders.nearest(&rows[size_t(r) * dim], mean[r], reach(r));
+    }, ParallelOptions{threads, 8});
+    std::vector<const float*> added;
+    std::vector<double> added_mean;
+    for (size_t j = 0; j < count; ++j) {
+      const uint32_t r = order[at + j];
+      const float* x = &rows[size_t(r) * dim];
+      LeaderSet::Found f = found[j];
+      for (size_t k = 0; k < added.size(); ++k)  // later than any leader before the batch
+        if (double(dim) * (added_mean[k] - mean[r]) * (added_mean[k] - mean[r]) <= f.d * (1 + 1e-9))
+          leaders.consider(x, added[k], uint32_t(leaders.count() + k), f);
+      if (f.seq == UINT32_MAX) {
+        added.push_back(x);
+        added_mean.push_back(mean[r]);
+        by_seq.push_back(r);
+      } else {
+        leader[r] = by_seq[f.seq];
+        merges.emplace_back(weight[r] * f.d, r);
       }
-    };
-    // Outward from the row's mean on both sides, each side until the bound passes the best so far.
-    auto bound = [&](float m) { return double(dim) * double(m - mean[r]) * double(m - mean[r]); };
-    const auto start = leaders.lower_bound(mean[r]);
-    for (auto it = start; it != leaders.end() && bound(it->first) <= best; ++it) consider(it->second);
-    for (auto it = start; it != leaders.begin();) {
-      --it;
-      if (bound(it->first) > best) break;
-      consider(it->second);
     }
-    if (chosen == UINT32_MAX) {
-      leaders.emplace(mean[r], r);
-    } else {
-      leader[r] = chosen;
-      merges.emplace_back(weight[r] * best, r);
-    }
+    leaders.add(added, added_mean);
   }
   std::sort(merges.begin(), merges.end());
   double spent = 0, kept = 0;
@@ -243,6 +304,8 @@ std::vector<uint32_t> leaders_of(const std::vector<float>& rows, size_t dim, con
                 merges.size(), kept, budget);
   return leader;
 }
+
+namespace {
 
 // Adds the sums of every merged row (`per_row` values each) to its leader's.
 void move_sums(const std::vector<uint32_t>& leader, size_t per_row, std::vector<double>& sums) {
@@ -277,7 +340,8 @@ void unify_m(Codebooks& k, const CodebookSizes& first) {
 // Added P1 rows (densities) merged; P2 rows point at the leaders, whose centres the next rounds
 // fit to all of their uses. The growing phases' repairs store most P1 rows exactly, one per
 // failing slice row, so many are near-copies of each other.
-void merge_p1(Codebooks& k, const CodebookSizes& first, const LowerSums& s, double radius, double budget) {
+void merge_p1(Codebooks& k, const CodebookSizes& first, const LowerSums& s, double radius, double budget,
+              size_t threads) {
   const size_t nb = k.grid.n_beta, na = k.grid.n_alpha, p1_first = first[CodebookId::P1], p2_first = first[CodebookId::P2];
   std::vector<double> w(k.p1.rows() - p1_first, 0.0);
   for (size_t q = p2_first; q < k.p2_index.rows(); ++q)
@@ -287,12 +351,12 @@ void merge_p1(Codebooks& k, const CodebookSizes& first, const LowerSums& s, doub
       if (e >= p1_first) w[e - p1_first] += ps * ps * s.lum_w[(q - p2_first) * na + a];
     }
   const std::vector<float> rows(k.p1.data().begin() + ptrdiff_t(p1_first * nb), k.p1.data().end());
-  redirect(k.p2_index, p2_first, 0, na, p1_first, leaders_of(rows, nb, w, radius, budget));
+  redirect(k.p2_index, p2_first, 0, na, p1_first, merge_leaders(rows, nb, w, radius, budget, threads));
 }
 
 // Added P2 rows merged by their decoded slices (a row's weight is S^2 summed over the planes that
 // use it, the same for every alpha); their sums move to the leader, M rows follow.
-void merge_p2(Codebooks& k, const CodebookSizes& first, LowerSums& s, double radius, double budget) {
+void merge_p2(Codebooks& k, const CodebookSizes& first, LowerSums& s, double radius, double budget, size_t threads) {
   const size_t nb = k.grid.n_beta, na = k.grid.n_alpha, p2_first = first[CodebookId::P2];
   const size_t n = k.p2_index.rows() - p2_first;
   std::vector<float> slices(n * na * nb);
@@ -304,7 +368,7 @@ void merge_p2(Codebooks& k, const CodebookSizes& first, LowerSums& s, double rad
       for (size_t b = 0; b < nb; ++b) slices[(q * na + a) * nb + b] = k.p2_scale.at(p2_first + q, a) * d[b];
     }
   }
-  const std::vector<uint32_t> leader = leaders_of(slices, na * nb, w, radius, budget);
+  const std::vector<uint32_t> leader = merge_leaders(slices, na * nb, w, radius, budget, threads);
   move_sums(leader, na * nb, s.lum);
   move_sums(leader, na, s.lum_w);
   redirect(k.m, first[CodebookId::M], 0, 1, p2_first, leader);
@@ -321,7 +385,7 @@ void i1_values(const Codebooks& k, uint32_t r, float* out) {
 
 // Added I1 rows merged by their decoded chroma (weight: w summed over their uses, the same for every
 // beta); their sums move to the leader, I2 rows follow.
-void merge_i1(Codebooks& k, const CodebookSizes& first, LowerSums& s, double radius, double budget) {
+void merge_i1(Codebooks& k, const CodebookSizes& first, LowerSums& s, double radius, double budget, size_t threads) {
   const size_t nb = k.grid.n_beta, i1_first = first[CodebookId::I1], n = k.i1.rows() - i1_first;
   std::vector<float> rows(n * 2 * nb);
   std::vector<double> w(n);
@@ -329,7 +393,7 @@ void merge_i1(Codebooks& k, const CodebookSizes& first, LowerSums& s, double rad
     w[r] = s.chroma_w[r * nb];
     i1_values(k, uint32_t(i1_first + r), &rows[r * 2 * nb]);
   }
-  const std::vector<uint32_t> leader = leaders_of(rows, 2 * nb, w, radius, budget);
+  const std::vector<uint32_t> leader = merge_leaders(rows, 2 * nb, w, radius, budget, threads);
   move_sums(leader, 2 * nb, s.chroma);
   move_sums(leader, nb, s.chroma_w);
   redirect(k.i2, first[CodebookId::I2], 0, k.i2.cols(), i1_first, leader);
@@ -337,26 +401,28 @@ void merge_i1(Codebooks& k, const CodebookSizes& first, LowerSums& s, double rad
 
 // Added I2 rows merged by their decoded chroma slices; M rows follow. Last of the chroma updates:
 // the sums are kept per I1 row, so a merged I2 row's share cannot be moved.
-void merge_i2(Codebooks& k, const CodebookSizes& first, const LowerSums& s, double radius, double budget) {
+void merge_i2(Codebooks& k, const CodebookSizes& first, const LowerSums& s, double radius, double budget,
+              size_t threads) {
   const size_t nb = k.grid.n_beta, na = k.grid.n_alpha, i2_first = first[CodebookId::I2], n = k.i2.rows() - i2_first;
   std::vector<float> rows(n * na * 2 * nb);
   for (size_t r = 0; r < n; ++r)
     for (size_t a = 0; a < na; ++a) i1_values(k, k.i2.at(i2_first + r, a), &rows[(r * na + a) * 2 * nb]);
-  const std::vector<uint32_t> leader = leaders_of(rows, na * 2 * nb, s.i2_w, radius, budget);
+  const std::vector<uint32_t> leader = merge_leaders(rows, na * 2 * nb, s.i2_w, radius, budget, threads);
   redirect(k.m, first[CodebookId::M], 1, 2, i2_first, leader);
   unify_m(k, first);
 }
 
 // P1 rows at their least-squares centre, then P2 scales refitted, alternately. A density is kept
 // summing to 1 by moving its sum into the P2 scales that use it (the product is what decodes).
-void update_luminance(Codebooks& k, const CodebookSizes& first, LowerSums& s, const RefineMerge& merge, double budget) {
+void update_luminance(Codebooks& k, const CodebookSizes& first, LowerSums& s, const RefineMerge& merge, double budget,
+                      size_t threads) {
   const size_t nb = k.grid.n_beta, na = k.grid.n_alpha;
   const size_t p1_first = first[CodebookId::P1], p2_first = first[CodebookId::P2];
   const size_t p2_rows = k.p2_index.rows();
   std::vector<double> num, den;
   for (int round = 0; round < kLuminanceRounds; ++round) {
-    if (round == 1 && merge.p1 > 0) merge_p1(k, first, s, merge.p1, budget);
-    if (round == 2 && merge.p2 > 0) merge_p2(k, first, s, merge.p2, budget);
+    if (round == 1 && merge.p1 > 0) merge_p1(k, first, s, merge.p1, budget, threads);
+    if (round == 2 && merge.p2 > 0) merge_p2(k, first, s, merge.p2, budget, threads);
     num.assign((k.p1.rows() - p1_first) * nb, 0.0);
     den.assign(k.p1.rows() - p1_first, 0.0);
     for (size_t q = p2_first; q < p2_rows; ++q)
@@ -399,11 +465,12 @@ void update_luminance(Codebooks& k, const CodebookSizes& first, LowerSums& s, co
 
 // C entries at the centre of the chroma that reaches them, then every added I1 row's colour the
 // nearest entry to what reaches it (all of C: published entries are fine to point at).
-void update_chroma(Codebooks& k, const CodebookSizes& first, LowerSums& s, const RefineMerge& merge, double budget) {
+void update_chroma(Codebooks& k, const CodebookSizes& first, LowerSums& s, const RefineMerge& merge, double budget,
+                   size_t threads) {
   const size_t nb = k.grid.n_beta, c_first = first[CodebookId::C], i1_first = first[CodebookId::I1];
   const size_t i1_rows = k.i1.rows(), c_rows = k.c.rows();
   for (int round = 0; round < kChromaRounds; ++round) {
-    if (round == 1 && merge.i1 > 0) merge_i1(k, first, s, merge.i1, budget);
+    if (round == 1 && merge.i1 > 0) merge_i1(k, first, s, merge.i1, budget, threads);
     std::vector<double> num(2 * (c_rows - c_first), 0.0), den(c_rows - c_first, 0.0);
     for (size_t r = i1_first; r < i1_rows; ++r)
       for (size_t b = 0; b < nb; ++b) {
@@ -582,9 +649,9 @@ RefineStep refine_step(Codebooks& books, const CodebookSizes& first, Dynamic dyn
   const double error = lower_sums(books, first, dyn, assignment, source, tile, lower);
   step.mse_before = error / values;
   const double budget = merge.budget * error;  // per kind of row merged
-  update_luminance(books, first, lower, merge, budget);
-  update_chroma(books, first, lower, merge, budget);
-  if (merge.i2 > 0) merge_i2(books, first, lower, merge.i2, budget);
+  update_luminance(books, first, lower, merge, budget, threads);
+  update_chroma(books, first, lower, merge, budget, threads);
+  if (merge.i2 > 0) merge_i2(books, first, lower, merge.i2, budget, threads);
   PlaneSums planes;
   plane_sums(books, dyn, assignment, source, tile, threads, planes);
   update_scales(books, first, assignment, planes);

@@ -41,6 +41,17 @@ struct RefineMerge {
   double budget = 1e300;
 };
 
+// Which row each row merges into (the refinement's merges; rows: n x dim values, weight: n).
+// Rows are taken heaviest first; a row joins the nearest leader within its reach, radius^2 x mean
+// weight / its weight (the error a merge adds is the row's weight times the squared distance, so
+// heavy rows merge only when close, light ones readily), else it leads; of leaders equally near,
+// the one that led first. Rows of weight 0 (no texel reaches them) stay themselves. Of the merges
+// found, the cheapest are kept while their added error stays within `budget`; the rest stay
+// themselves (a follower leads nobody, so dropping its merge changes no other row's). `threads` as
+// ParallelOptions::threads; the result does not depend on it.
+std::vector<uint32_t> merge_leaders(const std::vector<float>& rows, size_t dim, const std::vector<double>& weight,
+                                    double radius, double budget, size_t threads = 0);
+
 // The "refine" section of configs/pipeline.json.
 struct RefineSettings {
   int iterations = 0;    // Lloyd iterations (assign, update) at most; 0: no refinement
