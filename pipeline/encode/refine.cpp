@@ -66,6 +66,9 @@ constexpr int kScaleRounds = 3;
 // logarithmic quantization range of the whole chunk (docs/format.md) for nothing visible.
 constexpr float kTiny = 1e-6f;
 
+// Directions of most spread whose projections bound the distance of two rows in the merges' search.
+constexpr size_t kMergeDirections = 6;
+
 float non_negative(double v) { return v > double(kTiny) ? float(v) : 0.0f; }
 
 struct Layout {
@@ -167,26 +170,91 @@ double lower_sums(const Codebooks& k, const CodebookSizes& first, Dynamic dyn, c
   return error;
 }
 
-// The leaders found so far, sorted by mean, with a copy of their rows in that order (a search walks
-// them contiguously). seq: the order in which they became leaders; a tie goes to the earliest.
+// Orthonormal directions (k x dim, row-major) along which the rows spread most: subspace iteration
+// on the covariance of (at most 4,096 of) the rows. Any orthonormal directions give a true lower
+// bound on the distance of two rows, the sum of their squared differences along them; these make
+// it tight. Deterministic: one thread, fixed order.
+std::vector<double> spread_directions(const std::vector<float>& rows, size_t dim, const std::vector<uint32_t>& use,
+                                      size_t k) {
+  const size_t step = std::max<size_t>(1, use.size() / 4096);
+  std::vector<double> mean(dim, 0.0), cov(dim * dim, 0.0), x(dim);
+  size_t count = 0;
+  for (size_t i = 0; i < use.size(); i += step, ++count)
+    for (size_t v = 0; v < dim; ++v) mean[v] += rows[size_t(use[i]) * dim + v];
+  for (double& m : mean) m /= double(std::max<size_t>(count, 1));
+  for (size_t i = 0; i < use.size(); i += step) {
+    for (size_t v = 0; v < dim; ++v) x[v] = rows[size_t(use[i]) * dim + v] - mean[v];
+    for (size_t u = 0; u < dim; ++u)
+      for (size_t v = 0; v < dim; ++v) cov[u * dim + v] += x[u] * x[v];
+  }
+  std::vector<double> q(k * dim), y(k * dim);
+  for (size_t j = 0; j < k; ++j)
+    for (size_t v = 0; v < dim; ++v) q[j * dim + v] = v == j ? 1.0 : 1.0 / double(dim + j + v);  // a fixed start
+  auto orthonormalize = [&](std::vector<double>& m) {  // Gram-Schmidt, twice for accuracy
+    for (int pass = 0; pass < 2; ++pass)
+      for (size_t j = 0; j < k; ++j) {
+        double* a = &m[j * dim];
+        for (size_t i = 0; i < j; ++i) {
+          const double* e = &m[i * dim];
+          double dot = 0;
+          for (size_t v = 0; v < dim; ++v) dot += a[v] * e[v];
+          for (size_t v = 0; v < dim; ++v) a[v] -= dot * e[v];
+        }
+        double norm = 0;
+        for (size_t v = 0; v < dim; ++v) norm += a[v] * a[v];
+        norm = std::sqrt(norm);
+        for (size_t v = 0; v < dim; ++v) a[v] = norm > 0 ? a[v] / norm : (v == j ? 1.0 : 0.0);
+      }
+  };
+  orthonormalize(q);
+  for (int it = 0; it < 30; ++it) {
+    for (size_t j = 0; j < k; ++j)
+      for (size_t u = 0; u < dim; ++u) {
+        double sum = 0;
+        for (size_t v = 0; v < dim; ++v) sum += cov[u * dim + v] * q[j * dim + v];
+        y[j * dim + u] = sum;
+      }
+    q.swap(y);
+    orthonormalize(q);
+  }
+  return q;
+}
+
+// The leaders found so far, sorted by their first projection, with a copy of their projections
+// and rows in that order (a search walks them contiguously). seq: the order in which they became
+// leaders; a tie goes to the earliest.
 class LeaderSet {
  public:
-  explicit LeaderSet(size_t dim) : dim_(dim) {}
+  LeaderSet(size_t dim, size_t k, double slack) : dim_(dim), k_(k), slack_(slack) {}
 
   struct Found {
     double d;
     uint32_t seq = UINT32_MAX;  // UINT32_MAX: none within reach
   };
 
-  // The nearest leader to x (mean m) within `reach`. Two rows are at least sqrt(dim) times the
-  // difference of their means apart, so the search runs outward from m until that bound passes
-  // the nearest found (with a margin for rounding: the result is the exhaustive search's).
-  Found nearest(const float* x, double m, double reach) const {
+  // Whether the projections alone put a leader past f (with a margin for rounding, so that the
+  // search finds what the exhaustive one does).
+  bool far(double bound, const Found& f) const { return bound > f.d * (1 + 1e-9) + slack_; }
+  double bound(const double* a, const double* b) const {
+    double sum = 0;
+    for (size_t j = 0; j < k_; ++j) sum += (a[j] - b[j]) * (a[j] - b[j]);
+    return sum;
+  }
+
+  // The nearest leader to x (projections px) within `reach`: outward from x's first projection
+  // until that alone passes the nearest found, skipping leaders that all k put past it.
+  Found nearest(const float* x, const double* px, double reach) const {
     Found f{reach};
-    const size_t start = size_t(std::lower_bound(mean_.begin(), mean_.end(), m) - mean_.begin());
-    auto far = [&](size_t i) { return double(dim_) * (mean_[i] - m) * (mean_[i] - m) > f.d * (1 + 1e-9); };
-    for (size_t i = start; i < mean_.size() && !far(i); ++i) consider(x, &rows_[i * dim_], seq_[i], f);
-    for (size_t i = start; i-- > 0 && !far(i);) consider(x, &rows_[i * dim_], seq_[i], f);
+    const size_t start = size_t(std::lower_bound(key_.begin(), key_.end(), px[0]) - key_.begin());
+    auto visit = [&](size_t i) {
+      if (far((key_[i] - px[0]) * (key_[i] - px[0]), f)) return false;
+      if (!far(bound(&proj_[i * k_], px), f)) consider(x, &rows_[i * dim_], seq_[i], f);
+      return true;
+    };
+    for (size_t i = start; i < key_.size() && visit(i); ++i) {
+    }
+    for (size_t i = start; i-- > 0 && visit(i);) {
+    }
     return f;
   }
 
@@ -197,33 +265,35 @@ class LeaderSet {
     if (d < f.d || (d == f.d && seq < f.seq)) f = {d, seq};
   }
 
-  // Adds leaders (row values, mean) whose seq continue the set's.
-  void add(const std::vector<const float*>& rows, const std::vector<double>& means) {
-    std::vector<size_t> order(mean_.size() + means.size());
+  // Adds leaders (rows and their k projections) whose seq continue the set's.
+  void add(const std::vector<const float*>& rows, const std::vector<const double*>& proj) {
+    const size_t old = key_.size();
+    std::vector<size_t> order(old + rows.size());
     for (size_t i = 0; i < order.size(); ++i) order[i] = i;
-    auto mean_of = [&](size_t i) { return i < mean_.size() ? mean_[i] : means[i - mean_.size()]; };
-    std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return mean_of(a) < mean_of(b); });
-    std::vector<double> mean(order.size());
+    auto proj_of = [&](size_t i) { return i < old ? &proj_[i * k_] : proj[i - old]; };
+    std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return proj_of(a)[0] < proj_of(b)[0]; });
+    std::vector<double> key(order.size()), projections(order.size() * k_);
     std::vector<uint32_t> seq(order.size());
     std::vector<float> values(order.size() * dim_);
-    for (size_t k = 0; k < order.size(); ++k) {
-      const size_t i = order[k];
-      mean[k] = mean_of(i);
-      seq[k] = i < mean_.size() ? seq_[i] : uint32_t(count_ + (i - mean_.size()));
-      const float* y = i < mean_.size() ? &rows_[i * dim_] : rows[i - mean_.size()];
-      std::copy(y, y + dim_, &values[k * dim_]);
+    for (size_t at = 0; at < order.size(); ++at) {
+      const size_t i = order[at];
+      key[at] = proj_of(i)[0];
+      std::copy_n(proj_of(i), k_, &projections[at * k_]);
+      seq[at] = i < old ? seq_[i] : uint32_t(old + (i - old));
+      std::copy_n(i < old ? &rows_[i * dim_] : rows[i - old], dim_, &values[at * dim_]);
     }
-    count_ += means.size();
-    mean_.swap(mean);
+    key_.swap(key);
+    proj_.swap(projections);
     seq_.swap(seq);
     rows_.swap(values);
   }
 
-  size_t count() const { return count_; }
+  size_t count() const { return key_.size(); }
 
  private:
-  size_t dim_, count_ = 0;
-  std::vector<double> mean_;
+  size_t dim_, k_;
+  double slack_;
+  std::vector<double> key_, proj_;
   std::vector<uint32_t> seq_;
   std::vector<float> rows_;
 };
@@ -246,19 +316,29 @@ std::vector<uint32_t> merge_leaders(const std::vector<float>& rows, size_t dim, 
       order.push_back(r);
       mean_weight += weight[r];
     }
-  if (order.empty() || !(radius > 0)) return leader;
+  if (order.empty() || !(radius > 0) || dim == 0) return leader;
   mean_weight /= double(order.size());
   std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return weight[a] > weight[b]; });
-  std::vector<double> mean(n, 0.0);
-  for (size_t r = 0; r < n; ++r) {
-    double sum = 0;
-    for (size_t v = 0; v < dim; ++v) sum += rows[r * dim + v];
-    mean[r] = sum / double(dim);
-  }
   auto reach = [&](uint32_t r) { return radius * radius * mean_weight / weight[r]; };
 
+  // Every row's projections on the directions of most spread. Their rounding (about dim^1.5 x 1e-16
+  // of the largest value each) moves the bound by far less than the slack, 1e-12 x dim x that value^2.
+  const size_t k = std::min<size_t>(dim, kMergeDirections);
+  const std::vector<double> directions = spread_directions(rows, dim, order, k);
+  std::vector<double> proj(n * k);
+  double longest = 0;
+  parallel_for(0, n, [&](size_t r) {
+    for (size_t j = 0; j < k; ++j) {
+      double sum = 0;
+      for (size_t v = 0; v < dim; ++v) sum += directions[j * dim + v] * rows[r * dim + v];
+      proj[r * k + j] = sum;
+    }
+  }, ParallelOptions{threads});
+  for (float v : rows) longest = std::max(longest, double(std::fabs(v)));
+  const double slack = 1e-12 * double(dim) * longest * longest;
+
   constexpr size_t kBatch = 256;
-  LeaderSet leaders(dim);
+  LeaderSet leaders(dim, k, slack);
   std::vector<uint32_t> by_seq;  // row of each leader
   std::vector<LeaderSet::Found> found(kBatch);
   std::vector<std::pair<double, uint32_t>> merges;  // (added error, row)
@@ -266,27 +346,27 @@ std::vector<uint32_t> merge_leaders(const std::vector<float>& rows, size_t dim, 
     const size_t count = std::min(kBatch, order.size() - at);
     parallel_for(0, count, [&](size_t j) {
       const uint32_t r = order[at + j];
-      found[j] = leaders.nearest(&rows[size_t(r) * dim], mean[r], reach(r));
+      found[j] = leaders.nearest(&rows[size_t(r) * dim], &proj[r * k], reach(r));
     }, ParallelOptions{threads, 8});
     std::vector<const float*> added;
-    std::vector<double> added_mean;
+    std::vector<const double*> added_proj;
     for (size_t j = 0; j < count; ++j) {
       const uint32_t r = order[at + j];
       const float* x = &rows[size_t(r) * dim];
       LeaderSet::Found f = found[j];
-      for (size_t k = 0; k < added.size(); ++k)  // later than any leader before the batch
-        if (double(dim) * (added_mean[k] - mean[r]) * (added_mean[k] - mean[r]) <= f.d * (1 + 1e-9))
-          leaders.consider(x, added[k], uint32_t(leaders.count() + k), f);
+      for (size_t i = 0; i < added.size(); ++i)  // later than any leader before the batch
+        if (!leaders.far(leaders.bound(added_proj[i], &proj[r * k]), f))
+          leaders.consider(x, added[i], uint32_t(leaders.count() + i), f);
       if (f.seq == UINT32_MAX) {
         added.push_back(x);
-        added_mean.push_back(mean[r]);
+        added_proj.push_back(&proj[r * k]);
         by_seq.push_back(r);
       } else {
         leader[r] = by_seq[f.seq];
         merges.emplace_back(weight[r] * f.d, r);
       }
     }
-    leaders.add(added, added_mean);
+    leaders.add(added, added_proj);
   }
   std::sort(merges.begin(), merges.end());
   double spent = 0, kept = 0;
