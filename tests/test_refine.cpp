@@ -277,6 +277,51 @@ TEST_CASE("merge_leaders is the row-by-row search over every leader, on any thre
   CHECK_THROWS_AS(merge_leaders(rows, dim + 1, w, 0.3, 1e300), InputError);
 }
 
+TEST_CASE("assigning each tile inside the first pass is assigning every texel before the step") {
+  const TightGrowth g;
+  Codebooks grown = g.grown;  // what the assignments search
+  const Encoder before(grown, Dynamic::LDR, Thresholds::defaults(), SimilaritySettings::defaults());
+  // Separately: every texel assigned with the grown code-books, then the step.
+  Codebooks apart = g.grown;
+  Assignment as_apart = assignment_of(g.r);
+  for (size_t i = 0; i < as_apart.ids.size(); ++i) {
+    const P6Entry e = before.encode_frozen(g.mat.texel(as_apart.ids[i]).data());
+    as_apart.p4[i] = e.index;
+    as_apart.scale[i] = e.scale;
+  }
+  const RefineMerge merge = ScheduleSettings::defaults().refine.merge;
+  const RefineStep step_apart = refine_step(apart, {}, Dynamic::LDR, as_apart, g.mat.source(), 32, merge);
+  // In the pass: the assignment starts out wrong (entry 0, scale 1 everywhere) and tiles of 7.
+  Codebooks fused = g.grown;
+  Assignment as_fused = assignment_of(g.r);
+  std::fill(as_fused.p4.begin(), as_fused.p4.end(), 0u);
+  std::fill(as_fused.scale.begin(), as_fused.scale.end(), 1.0f);
+  size_t tiles = 0;
+  const size_t values = 3 * g.mat.grid.samples();
+  const RefineStep step_fused = refine_step(fused, {}, Dynamic::LDR, as_fused, g.mat.source(), 7, merge, 0,
+                                            [&](const float* x, size_t n, uint32_t* p4, float* scale) {
+                                              ++tiles;
+                                              for (size_t i = 0; i < n; ++i) {
+                                                const P6Entry e = before.encode_frozen(x + i * values);
+                                                p4[i] = e.index;
+                                                scale[i] = e.scale;
+                                              }
+                                            });
+  CHECK(tiles == (as_fused.ids.size() + 6) / 7);
+  CHECK(step_fused.mse_before == step_apart.mse_before);
+  CHECK(step_fused.mse_after == step_apart.mse_after);
+  CHECK(as_fused.p4 == as_apart.p4);
+  CHECK(as_fused.scale == as_apart.scale);
+  CHECK(fused == apart);
+  // An entry past the end of P4 from the assignment is refused as one in the assignment is.
+  Codebooks k = g.grown;
+  Assignment as = assignment_of(g.r);
+  const uint32_t past = uint32_t(k.p4_index.rows());
+  CHECK_THROWS_AS(refine_step(k, {}, Dynamic::LDR, as, g.mat.source(), 32, {}, 0,
+                              [&](const float*, size_t n, uint32_t* p4, float*) { std::fill_n(p4, n, past); }),
+                  InputError);
+}
+
 TEST_CASE("refine_step rejects an assignment that does not fit the code-books") {
   SyntheticMaterial mat(4, 4);
   Codebooks k(mat.grid);

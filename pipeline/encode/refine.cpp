@@ -106,9 +106,10 @@ void for_each_texel(const Assignment& a, const TexelSource& source, size_t tile,
   });
 }
 
-// Pass over the data with the current code-books: the sums of LowerSums and the squared error.
-double lower_sums(const Codebooks& k, const CodebookSizes& first, Dynamic dyn, const Assignment& as,
-                  const TexelSource& source, size_t tile, LowerSums& out) {
+// Pass over the data with the current code-books (each tile assigned first, with `assign`): the
+// sums of LowerSums and the squared error.
+double lower_sums(const Codebooks& k, const CodebookSizes& first, Dynamic dyn, Assignment& as,
+                  const TexelSource& source, size_t tile, const AssignTile& assign, LowerSums& out) {
   const Layout L(k.grid);
   const size_t p2_first = first[CodebookId::P2], i1_first = first[CodebookId::I1];
   out.lum.assign((k.p2_index.rows() - p2_first) * size_t(L.na * L.nb), 0.0);
@@ -120,9 +121,10 @@ double lower_sums(const Codebooks& k, const CodebookSizes& first, Dynamic dyn, c
   const float oy = channel_offset(dyn, 0), oc = channel_offset(dyn, 1);
   const bool chroma_scales = channel_scales(dyn, 1);
   double error = 0;
-  for_each_texel(as, source, tile, 3 * L.samples, 1, [&](size_t t, const float* x) {
+  auto sums = [&](size_t t, const float* x) {
     const float s6 = as.scale[t];
     const uint32_t p4 = as.p4[t];
+    if (p4 >= k.p4_index.rows()) throw InputError("refine_step: a P4 index past the end of P4");
     for (int p = 0; p < L.np; ++p) {
       const uint32_t p3 = k.p4_index.at(p4, size_t(p));
       const float s4 = s6 * k.p4_scale.at(p4, size_t(p));
@@ -166,6 +168,11 @@ double lower_sums(const Codebooks& k, const CodebookSizes& first, Dynamic dyn, c
         }
       }
     }
+  };
+  const size_t values = 3 * L.samples;
+  for_each_tile(as.ids.data(), as.ids.size(), source, tile, values, [&](size_t at, size_t n, const float* x) {
+    if (assign) assign(x, n, &as.p4[at], &as.scale[at]);
+    for (size_t i = 0; i < n; ++i) sums(at + i, x + i * values);
   });
   return error;
 }
@@ -715,18 +722,20 @@ void update_scales(Codebooks& k, const CodebookSizes& first, Assignment& as, con
 }  // namespace
 
 RefineStep refine_step(Codebooks& books, const CodebookSizes& first, Dynamic dyn, Assignment& assignment,
-                       const TexelSource& source, size_t tile, const RefineMerge& merge, size_t threads) {
+                       const TexelSource& source, size_t tile, const RefineMerge& merge, size_t threads,
+                       const AssignTile& assign) {
   if (assignment.p4.size() != assignment.ids.size() || assignment.scale.size() != assignment.ids.size())
     throw InputError("refine_step: the assignment's ids, P4 entries and scales differ in number");
   if (books.grid.n_beta > 1024) throw InputError("refine_step: n_beta above 1024");
-  for (uint32_t e : assignment.p4)
-    if (e >= books.p4_index.rows()) throw InputError("refine_step: a P4 index past the end of P4");
+  if (!assign)  // else lower_sums checks each entry as it is assigned
+    for (uint32_t e : assignment.p4)
+      if (e >= books.p4_index.rows()) throw InputError("refine_step: a P4 index past the end of P4");
   const double values = double(assignment.ids.size()) * 3.0 * double(books.grid.samples());
   RefineStep step;
   if (assignment.ids.empty()) return step;
   tile = std::max<size_t>(tile, 1);
   LowerSums lower;
-  const double error = lower_sums(books, first, dyn, assignment, source, tile, lower);
+  const double error = lower_sums(books, first, dyn, assignment, source, tile, assign, lower);
   step.mse_before = error / values;
   const double budget = merge.budget * error;  // per kind of row merged
   update_luminance(books, first, lower, merge, budget, threads);

@@ -101,10 +101,17 @@ struct RefineStep {
   double mse_before = 0, mse_after = 0;  // per value, coding space, over the assignment's texels
 };
 
+// The assignment step of a Lloyd iteration for one tile: sets the P4 entries and scales (n each)
+// of the n texels x (n x 3 x grid.samples() floats) with the code-books as they are.
+using AssignTile = std::function<void(const float* x, size_t n, uint32_t* p4, float* scale)>;
+
 // One update of the rows at or past `first` (and of the assignment's scales) for the assignment.
-// Texels come from `source` in tiles of `tile` texels. The rows `merge` makes redundant are left for
+// Texels come from `source` in tiles of `tile` texels. With `assign`, each tile is assigned first,
+// in the same pass as the first sums (the texels are resampled once for both); the assignment's P4
+// entries and scales are then only its output. The rows `merge` makes redundant are left for
 // reclaim_unreachable(). `threads` as ParallelOptions::threads; the result does not depend on it.
 RefineStep refine_step(Codebooks& books, const CodebookSizes& first, Dynamic dyn, Assignment& assignment,
-                       const TexelSource& source, size_t tile, const RefineMerge& merge = {}, size_t threads = 0);
+                       const TexelSource& source, size_t tile, const RefineMerge& merge = {}, size_t threads = 0,
+                       const AssignTile& assign = {});
 
 }  // namespace btfvq

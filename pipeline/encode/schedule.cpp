@@ -144,7 +144,8 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
   std::unique_ptr<FrozenSearch> frozen;  // built when phase 3 starts: the code-books are final then
 
   // Lloyd iterations on the first refine_texels texels in Halton order: assign (the phase-3
-  // search), update (refine_step); the encoder is rebuilt after each update, as its caches hold
+  // search, run by refine_step on each tile in its first pass, so the texels are resampled once for
+  // both) and update (refine_step); the encoder is rebuilt after each update, as its caches hold
   // the moved rows.
   auto refine = [&] {
     const auto t = std::chrono::steady_clock::now();
@@ -156,17 +157,17 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
     for (int it = 0; it < schedule.refine.iterations; ++it) {
       if (progress) progress({2, true, size_t(it), size_t(schedule.refine.iterations), CodebookSizes::of(books)});
       FrozenSearch search(*encoder, path, schedule.threads);
-      for_each_tile(as.ids.data(), refine_texels, source, tile, 3 * samples, [&](size_t at, size_t n, const float* x) {
+      auto assign = [&](const float* x, size_t n, uint32_t* p4, float* scale) {
         if (cancelled && cancelled()) throw CancelledError("encoding cancelled in the refinement");
         entries.resize(n);
         search.encode(x, n, entries.data());
         for (size_t i = 0; i < n; ++i) {
-          as.p4[at + i] = entries[i].index;
-          as.scale[at + i] = entries[i].scale;
+          p4[i] = entries[i].index;
+          scale[i] = entries[i].scale;
         }
-      });
+      };
       const RefineStep step = refine_step(books, first, dyn, as, source, tile, it == 0 ? schedule.refine.merge : RefineMerge{},
-                                          size_t(schedule.threads));
+                                          size_t(schedule.threads), assign);
       result.report.refine.push_back(step);
       grown.add(encoder->stats());
       encoder = make_encoder(encoder->thresholds());
