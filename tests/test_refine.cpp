@@ -275,6 +275,23 @@ TEST_CASE("merge_leaders is the row-by-row search over every leader, on any thre
     }
   }
   CHECK_THROWS_AS(merge_leaders(rows, dim + 1, w, 0.3, 1e300), InputError);
+
+  // Degenerate rows: all on one line through the origin (the spread has rank 1, so only one of the
+  // search's directions is real), and only two rows.
+  std::vector<float> line(600 * dim);
+  std::vector<double> line_w(600);
+  for (size_t r = 0; r < 600; ++r) {
+    const float t = float(int(uniform() * 200)) * 0.01f;  // copies among them too
+    for (size_t v = 0; v < dim; ++v) line[r * dim + v] = t * float(v % 3 + 1);
+    line_w[r] = 1 + uniform();
+  }
+  const std::vector<float> two(line.begin(), line.begin() + ptrdiff_t(2 * dim));
+  const std::vector<double> two_w(line_w.begin(), line_w.begin() + 2);
+  for (double radius : {0.01, 0.1}) {
+    CAPTURE(radius);
+    CHECK(merge_leaders(line, dim, line_w, radius, 1e300, 2) == exhaustive_leaders(line, dim, line_w, radius, 1e300));
+    CHECK(merge_leaders(two, dim, two_w, radius, 1e300, 2) == exhaustive_leaders(two, dim, two_w, radius, 1e300));
+  }
 }
 
 TEST_CASE("assigning each tile inside the first pass is assigning every texel before the step") {

@@ -177,7 +177,7 @@ double lower_sums(const Codebooks& k, const CodebookSizes& first, Dynamic dyn, A
   return error;
 }
 
-// Orthonormal directions (k x dim, row-major) along which the rows spread most: subspace iteration
+// Orthonormal directions (at most k, each dim values) along which the rows spread most: subspace iteration
 // on the covariance of (at most 4,096 of) the rows. Any orthonormal directions give a true lower
 // bound on the distance of two rows, the sum of their squared differences along them; these make
 // it tight. Deterministic: one thread, fixed order.
@@ -224,6 +224,19 @@ std::vector<double> spread_directions(const std::vector<float>& rows, size_t dim
     q.swap(y);
     orthonormalize(q);
   }
+  // Only an orthonormal prefix bounds the distance: degenerate rows (rank below k) could leave a
+  // direction that Gram-Schmidt had to replace by a unit vector in the span of the others.
+  size_t valid = 1;
+  for (; valid < k; ++valid) {
+    bool orthogonal = true;
+    for (size_t i = 0; i < valid && orthogonal; ++i) {
+      double dot = 0;
+      for (size_t v = 0; v < dim; ++v) dot += q[valid * dim + v] * q[i * dim + v];
+      orthogonal = std::fabs(dot) < 1e-12;
+    }
+    if (!orthogonal) break;
+  }
+  q.resize(valid * dim);
   return q;
 }
 
@@ -330,8 +343,8 @@ std::vector<uint32_t> merge_leaders(const std::vector<float>& rows, size_t dim, 
 
   // Every row's projections on the directions of most spread. Their rounding (about dim^1.5 x 1e-16
   // of the largest value each) moves the bound by far less than the slack, 1e-12 x dim x that value^2.
-  const size_t k = std::min<size_t>(dim, kMergeDirections);
-  const std::vector<double> directions = spread_directions(rows, dim, order, k);
+  const std::vector<double> directions = spread_directions(rows, dim, order, std::min<size_t>(dim, kMergeDirections));
+  const size_t k = directions.size() / dim;
   std::vector<double> proj(n * k);
   double longest = 0;
   parallel_for(0, n, [&](size_t r) {
