@@ -595,18 +595,9 @@ void order_candidates(uint32_t n, int k, int limit, Dist dist, std::vector<uint3
     for (uint32_t e = 0; e < n; ++e) order.push_back(e);
     return;
   }
-  struct Ranked {
-    float d;
-    uint32_t e;
-    bool operator<(const Ranked& o) const { return d < o.d || (d == o.d && e < o.e); }
-  };
   thread_local std::vector<Ranked> best;
   best.clear();
-  for (uint32_t e = 0; e < n; ++e) {
-    const float d = dist(e);
-    if (best.size() == size_t(k) && d > best.front().d) continue;
-    keep_smallest(best, size_t(k), Ranked{d, e});
-  }
+  for (uint32_t e = 0; e < n; ++e) keep_nearest(best, size_t(k), dist(e), e);
   std::sort(best.begin(), best.end());
   for (const Ranked& r : best) order.push_back(r.e);
   if (limit > 0) {

@@ -9,22 +9,6 @@
 
 namespace btfvq {
 
-namespace {
-
-struct Ranked {
-  float d;
-  uint32_t id;
-  bool operator<(const Ranked& o) const { return d < o.d || (d == o.d && id < o.id); }
-};
-
-// Offers (d, id) to the k nearest kept in heap; the first test alone turns most offers away.
-void keep(std::vector<Ranked>& heap, size_t k, float d, uint32_t id) {
-  if (heap.size() == k && d > heap.front().d) return;
-  keep_smallest(heap, k, Ranked{d, id});
-}
-
-}  // namespace
-
 size_t ProxyIndex::leader_budget(size_t n) { return 64 + 2 * size_t(std::sqrt(double(n))); }
 
 ProxyIndex::ProxyIndex(int dim, float radius) : dim_(dim), radius_(radius) {
@@ -105,19 +89,19 @@ void ProxyIndex::nearest(const float* q, int k, int probes, std::vector<uint32_t
   leader_lanes_.distances(q, dim_, d.data());
   near_leaders.clear();
   const size_t p = std::min(leaders_.size(), size_t(std::max(1, probes)));
-  for (size_t j = 0; j < leaders_.size(); ++j) keep(near_leaders, p, d[j], uint32_t(j));
+  for (size_t j = 0; j < leaders_.size(); ++j) keep_nearest(near_leaders, p, d[j], uint32_t(j));
   std::sort(near_leaders.begin(), near_leaders.end());  // nearest list first: the heap tightens soonest
   // Every member of the probed lists: a scan budget spent in insertion order never returned the
   // entries past a long list's first few hundred, and their rows were inserted again.
   heap.clear();
   for (const Ranked& leader : near_leaders) {
-    const std::vector<uint32_t>& ids = lists_[leader.id];
+    const std::vector<uint32_t>& ids = lists_[leader.e];
     d.resize((ids.size() + kLanes - 1) / kLanes * kLanes);
-    list_lanes_[leader.id].distances(q, dim_, d.data());
-    for (size_t i = 0; i < ids.size(); ++i) keep(heap, size_t(k), d[i], ids[i]);
+    list_lanes_[leader.e].distances(q, dim_, d.data());
+    for (size_t i = 0; i < ids.size(); ++i) keep_nearest(heap, size_t(k), d[i], ids[i]);
   }
   std::sort(heap.begin(), heap.end());
-  for (const Ranked& r : heap) out.push_back(r.id);
+  for (const Ranked& r : heap) out.push_back(r.e);
 }
 
 }  // namespace btfvq

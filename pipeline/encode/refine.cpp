@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <future>
+#include <iterator>
 #include <limits>
 #include <map>
 #include <stdexcept>
@@ -268,7 +269,7 @@ class LeaderSet {
     const size_t start = size_t(std::lower_bound(key_.begin(), key_.end(), px[0]) - key_.begin());
     auto visit = [&](size_t i) {
       if (far((key_[i] - px[0]) * (key_[i] - px[0]), f)) return false;
-      if (!far(bound(&proj_[i * k_], px), f)) consider(x, &rows_[i * dim_], seq_[i], f);
+      offer(x, px, &rows_[i * dim_], &proj_[i * k_], seq_[i], f);
       return true;
     };
     for (size_t i = start; i < key_.size() && visit(i); ++i) {
@@ -276,6 +277,11 @@ class LeaderSet {
     for (size_t i = start; i-- > 0 && visit(i);) {
     }
     return f;
+  }
+
+  // Offers leader y (projections py, seq) to x's search unless the projections alone put it past f.
+  void offer(const float* x, const double* px, const float* y, const double* py, uint32_t seq, Found& f) const {
+    if (!far(bound(py, px), f)) consider(x, y, seq, f);
   }
 
   // Considers leader y (seq) for x: nearer, or as near and earlier, than f.
@@ -287,11 +293,17 @@ class LeaderSet {
 
   // Adds leaders (rows and their k projections) whose seq continue the set's.
   void add(const std::vector<const float*>& rows, const std::vector<const double*>& proj) {
+    if (rows.empty()) return;
     const size_t old = key_.size();
-    std::vector<size_t> order(old + rows.size());
-    for (size_t i = 0; i < order.size(); ++i) order[i] = i;
     auto proj_of = [&](size_t i) { return i < old ? &proj_[i * k_] : proj[i - old]; };
-    std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return proj_of(a)[0] < proj_of(b)[0]; });
+    auto by_key = [&](size_t a, size_t b) { return proj_of(a)[0] < proj_of(b)[0]; };
+    // The leaders already held are in key order: sort the new ones and merge, old first on ties.
+    std::vector<size_t> held(old), fresh(rows.size()), order;
+    for (size_t i = 0; i < old; ++i) held[i] = i;
+    for (size_t i = 0; i < fresh.size(); ++i) fresh[i] = old + i;
+    std::stable_sort(fresh.begin(), fresh.end(), by_key);
+    order.reserve(old + fresh.size());
+    std::merge(held.begin(), held.end(), fresh.begin(), fresh.end(), std::back_inserter(order), by_key);
     std::vector<double> key(order.size()), projections(order.size() * k_);
     std::vector<uint32_t> seq(order.size());
     std::vector<float> values(order.size() * dim_);
@@ -375,8 +387,7 @@ std::vector<uint32_t> merge_leaders(const std::vector<float>& rows, size_t dim, 
       const float* x = &rows[size_t(r) * dim];
       LeaderSet::Found f = found[j];
       for (size_t i = 0; i < added.size(); ++i)  // later than any leader before the batch
-        if (!leaders.far(leaders.bound(added_proj[i], &proj[r * k]), f))
-          leaders.consider(x, added[i], uint32_t(leaders.count() + i), f);
+        leaders.offer(x, &proj[r * k], added[i], added_proj[i], uint32_t(leaders.count() + i), f);
       if (f.seq == UINT32_MAX) {
         added.push_back(x);
         added_proj.push_back(&proj[r * k]);

@@ -23,6 +23,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <vector>
+#include "pipeline/util/bounded_heap.h"
 
 namespace btfvq {
 
@@ -45,11 +46,7 @@ class SignatureTable {
   void nearest(const float* q, size_t k, std::vector<uint32_t>& out, size_t threads = 1) const;
 
   // An entry and its scaled distance to a query; ordered by (distance, index).
-  struct Neighbour {
-    float d;
-    uint32_t e;
-    bool operator<(const Neighbour& o) const { return d < o.d || (d == o.d && e < o.e); }
-  };
+  using Neighbour = Ranked;
   // For each of the nq queries, the min(k, size() - first) entries of [first, size()) nearest to
   // it, nearest first (a composition searches its 7 or 16 parts against the same level; the
   // queries are spread over `threads`).
