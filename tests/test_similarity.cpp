@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <random>
 #include <vector>
 
@@ -115,6 +116,26 @@ TEST_CASE("the score is the 2nd percentile: r = floor(0.02 n) values may be wors
   acc.reset(Metric::SSIM, v.size(), s.outlier_fraction, -1e300);
   acc.add_ssim(v.data(), int(v.size()));
   CHECK(acc.score() == doctest::Approx(0.4));
+}
+
+TEST_CASE("the score is the (r+1)-th smallest of every value added, however they come in") {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  for (size_t total : {121u, 363u, 2541u, 40656u})
+    for (int chunk : {1, 121, 363, 1000}) {
+      std::vector<float> v(total);
+      for (float& x : v) x = u(rng);
+      if (total > 1000) std::fill(v.begin() + 500, v.begin() + 900, 0.25f);  // ties
+      if (chunk == 121) std::sort(v.begin(), v.end(), std::greater<>());  // each value below every kept one
+      ScoreAccumulator acc;
+      acc.reset(Metric::SSIM, total, 0.02, -1e300);
+      for (size_t at = 0; at < total; at += size_t(chunk))
+        REQUIRE(acc.add_ssim(v.data() + at, int(std::min(total - at, size_t(chunk)))));
+      std::vector<float> sorted = v;
+      std::sort(sorted.begin(), sorted.end());
+      const size_t r = size_t(std::floor(0.02 * double(total) + 1e-9));
+      CHECK(acc.score() == double(sorted[r]));
+    }
 }
 
 TEST_CASE("pruning: a candidate dies exactly when more than r values fall below the bound") {
