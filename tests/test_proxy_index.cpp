@@ -131,3 +131,26 @@ TEST_CASE("an empty index returns nothing; a bad dimension or radius is an error
   CHECK_THROWS_AS(ProxyIndex(3, 0.0f), InputError);
   CHECK_THROWS_AS(ProxyIndex(3, std::numeric_limits<float>::quiet_NaN()), InputError);
 }
+
+TEST_CASE("RowLanes: every row's distance is plain_distance's, whatever the number of rows") {
+  for (int dim : {11, 22})
+    for (size_t n : {0u, 1u, 7u, 8u, 9u, 1000u}) {
+      const std::vector<float> rows = random_vectors(n, dim, uint32_t(n) + 3);
+      const std::vector<float> q = random_vectors(1, dim, 99);
+      RowLanes lanes(dim);
+      for (size_t e = 0; e < n; ++e) lanes.append(&rows[e * size_t(dim)]);
+      CHECK(lanes.size() == n);
+      std::vector<float> d((n + RowLanes::kLanes - 1) / RowLanes::kLanes * RowLanes::kLanes, -1.0f);
+      lanes.distances(q.data(), d.data());
+      for (size_t e = 0; e < n; ++e) {
+        // The reference: float differences, squared and summed in double in value order.
+        double want = 0;
+        for (int i = 0; i < dim; ++i) {
+          const double x = double(q[size_t(i)] - rows[e * size_t(dim) + size_t(i)]);
+          want += x * x;
+        }
+        CHECK(d[e] == float(want));
+        CHECK(plain_distance(q.data(), &rows[e * size_t(dim)], dim) == float(want));
+      }
+    }
+}

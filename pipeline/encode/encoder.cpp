@@ -216,6 +216,8 @@ Encoder::Encoder(Codebooks& books, Dynamic dyn, const Thresholds& thresholds, co
   i1_index_ = ProxyIndex(2 * grid_.n_beta, 2.0f);
   p2_store_ = SliceStore(1, &g2_);
   i2_store_ = SliceStore(2, &g2_);
+  p2_lanes_ = RowLanes(grid_.n_alpha);
+  i2_lanes_ = RowLanes(2 * grid_.n_alpha);
   m_sig_ = SignatureTable(3 * grid_.n_alpha);
   p3_sig_ = SignatureTable(3 * grid_.n_theta_v);
   p4_sig_ = SignatureTable(3 * grid_.n_theta_v * grid_.n_phi_v);
@@ -354,6 +356,7 @@ void Encoder::cache_p2(uint32_t e) {
     for (int b = 0; b < nb; ++b) s += v[size_t(a * nb + b)];
     p2_sig_.push_back(float(s / nb) - o);
   }
+  p2_lanes_.append(&p2_sig_[size_t(e) * size_t(na)]);
 }
 
 void Encoder::cache_i2(uint32_t e) {
@@ -375,6 +378,7 @@ void Encoder::cache_i2(uint32_t e) {
       for (int b = 0; b < nb; ++b) s += v[size_t(ch * n + a * nb + b)];
       i2_sig_.push_back(float(s / nb) - channel_offset(dyn_, 1 + ch));
     }
+  i2_lanes_.append(&i2_sig_[size_t(e) * size_t(2 * na)]);
 }
 
 void Encoder::cache_m(uint32_t e) {
@@ -608,12 +612,6 @@ void order_candidates(uint32_t n, int k, int limit, Dist dist, std::vector<uint3
   for (uint32_t e : order) tried[e] = 1;
   for (uint32_t e = 0; e < n; ++e)
     if (!tried[e]) order.push_back(e);
-}
-
-float plain_distance(const float* q, const float* y, int n) {
-  double d = 0;
-  for (int i = 0; i < n; ++i) d += double(q[i] - y[i]) * (q[i] - y[i]);
-  return float(d);
 }
 
 }  // namespace
@@ -879,6 +877,15 @@ Encoder::Match Encoder::confirm(const Query& q, int level, double bound, const S
   return m.index >= 0 && (s.best.index < 0 || m.score > s.best.score) ? m : s.best;
 }
 
+// The candidate order of a P2 or I2 search: by the plain distance of the row means.
+void Encoder::order_by_rows(const float* qsig, const RowLanes& rows, Ctx& ctx) const {
+  thread_local std::vector<float> d;
+  d.resize((rows.size() + RowLanes::kLanes - 1) / RowLanes::kLanes * RowLanes::kLanes);
+  rows.distances(qsig, d.data());
+  order_candidates(uint32_t(rows.size()), settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
+                   [&](uint32_t e) { return d[e]; }, ctx.order, ctx.tried);
+}
+
 Encoder::Match Encoder::search_p2(const Query& q, double threshold_score, Ctx& ctx) const {
   Match best;
   const uint32_t n = p2_store_.size();
@@ -886,10 +893,7 @@ Encoder::Match Encoder::search_p2(const Query& q, double threshold_score, Ctx& c
   const int na = grid_.n_alpha, nb = grid_.n_beta;
   std::vector<float> qsig(static_cast<size_t>(na));
   for (int a = 0; a < na; ++a) qsig[size_t(a)] = float(q.at(0, 0).row_sum(a, nb) / nb) - channel_offset(dyn_, 0);
-  order_candidates(
-      n, settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
-      [&](uint32_t e) { return plain_distance(qsig.data(), p2_sig_.data() + size_t(e) * size_t(na), na); }, ctx.order,
-      ctx.tried);
+  order_by_rows(qsig.data(), p2_lanes_, ctx);
   const Affine ax = unit_affine(dyn_, 0, q.unit);
   auto eval = [&](uint32_t e, double bound, double* sc, float* s) {
     ctx.acc.reset(settings_.metric, q.values, settings_.outlier_fraction, bound);
@@ -913,10 +917,7 @@ Encoder::Match Encoder::search_i2(const Query& q, double threshold_score, Ctx& c
   std::vector<float> qsig;
   for (int c = 1; c <= 2; ++c)
     for (int a = 0; a < na; ++a) qsig.push_back(float(q.at(0, c).row_sum(a, nb) / nb) - channel_offset(dyn_, c));
-  order_candidates(
-      n, settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
-      [&](uint32_t e) { return plain_distance(qsig.data(), i2_sig_.data() + size_t(e) * size_t(2 * na), 2 * na); },
-      ctx.order, ctx.tried);
+  order_by_rows(qsig.data(), i2_lanes_, ctx);
   auto eval = [&](uint32_t e, double bound, double* sc, float* s) {
     ctx.acc.reset(settings_.metric, q.values, settings_.outlier_fraction, bound);
     for (int c = 1; c <= 2; ++c) {

@@ -214,6 +214,7 @@ class Encoder {
   // `stats`: a buffer to hold the window statistics (its capacity is reused).
   Query texel_query(const std::vector<float>& texel, Ctx& ctx, std::vector<float> stats = {}) const;
   P6Entry frozen_entry(const Query& q, const Match& best) const;
+  void order_by_rows(const float* qsig, const RowLanes& rows, Ctx& ctx) const;
   Match search_p2(const Query& q, double bound, Ctx& ctx) const;
   Match search_i2(const Query& q, double bound, Ctx& ctx) const;
   Match search_p1(const float* row, float unit, double bound, Ctx& ctx) const;
@@ -279,6 +280,7 @@ class Encoder {
   bool indexed_1d() const { return settings_.pruning && settings_.candidate_limit > 0; }
   SignatureTable m_sig_, p3_sig_, p4_sig_;  // proxy signatures (offset-removed means)
   std::vector<float> p2_sig_, i2_sig_;                 // row means
+  RowLanes p2_lanes_, i2_lanes_;                       // the same, laid out for the candidate orders' scans
   std::vector<float> m_bright_, p3_bright_, p4_bright_;  // mean of (Y - offset)
   std::unordered_map<uint64_t, uint32_t> m_lookup_;    // (P2, I2) -> M
   ContentIndex p1_rows_, c_rows_, i1_rows_, i2_rows_, p2_rows_, p3_rows_, p4_rows_;

@@ -9,6 +9,35 @@
 
 namespace btfvq {
 
+float plain_distance(const float* q, const float* y, int n) {
+  double d = 0;
+  for (int i = 0; i < n; ++i) d += double(q[i] - y[i]) * (q[i] - y[i]);
+  return float(d);
+}
+
+void RowLanes::append(const float* row) {
+  if (n_ % kLanes == 0) v_.resize(v_.size() + size_t(dim_) * kLanes, 0.0f);
+  float* block = v_.data() + (n_ / kLanes) * size_t(dim_) * kLanes;
+  for (int i = 0; i < dim_; ++i) block[size_t(i) * kLanes + n_ % kLanes] = row[i];
+  ++n_;
+}
+
+void RowLanes::distances(const float* q, float* out) const {
+  for (size_t b = 0; b * kLanes < n_; ++b) {
+    const float* block = v_.data() + b * size_t(dim_) * kLanes;
+    double s[kLanes] = {};
+    for (int i = 0; i < dim_; ++i) {
+      const float qi = q[i];
+      const float* y = block + size_t(i) * kLanes;
+      for (size_t j = 0; j < kLanes; ++j) {
+        const double d = double(qi - y[j]);
+        s[j] += d * d;
+      }
+    }
+    for (size_t j = 0; j < kLanes; ++j) out[b * kLanes + j] = float(s[j]);
+  }
+}
+
 size_t ProxyIndex::leader_budget(size_t n) { return 64 + 2 * size_t(std::sqrt(double(n))); }
 
 ProxyIndex::ProxyIndex(int dim, float radius) : dim_(dim), radius_(radius) {

@@ -15,6 +15,28 @@
 
 namespace btfvq {
 
+// |q - y|^2 over n values, each squared difference and the sum in double, in value order.
+float plain_distance(const float* q, const float* y, int n);
+
+// Rows of `dim` floats kept for a linear scan by plain_distance (the P2 and I2 candidate orders scan
+// every entry's row means, up to 130k entries at 256 x 256): value-major blocks of kLanes rows, so
+// that one pass computes kLanes distances at once, each summed in value order -- the same numbers
+// as plain_distance row by row (this file is built without contraction into FMA).
+class RowLanes {
+ public:
+  explicit RowLanes(int dim = 0) : dim_(dim) {}
+  void append(const float* row);
+  size_t size() const { return n_; }
+  // out[e] = plain_distance(q, row e) for every row; out holds size() rounded up to kLanes.
+  void distances(const float* q, float* out) const;
+  static constexpr size_t kLanes = 8;
+
+ private:
+  int dim_ = 0;
+  size_t n_ = 0;
+  std::vector<float> v_;
+};
+
 class ProxyIndex {
  public:
   ProxyIndex() = default;
