@@ -154,3 +154,38 @@ TEST_CASE("RowLanes: every row's distance is plain_distance's, whatever the numb
       }
     }
 }
+
+TEST_CASE("equal distances: the k nearest are the lowest ids among them, as the linear scan has it") {
+  const int dim = 11;
+  const auto distinct = random_vectors(100, dim, 5);
+  std::vector<float> v;
+  for (int copy = 0; copy < 30; ++copy) v.insert(v.end(), distinct.begin(), distinct.end());  // each vector 30 times
+  ProxyIndex index(dim, 0.5f);
+  for (size_t i = 0; i < v.size() / dim; ++i) index.insert(v.data() + i * dim);
+  std::vector<uint32_t> got;
+  for (int i = 0; i < 100; i += 7) {
+    index.nearest(distinct.data() + size_t(i) * dim, 40, 1 << 20, got);
+    CHECK(got == brute_force(v, dim, distinct.data() + size_t(i) * dim, 40));
+  }
+}
+
+TEST_CASE("an entry as near as the k-th but of a lower id, in a list probed later, takes its place") {
+  // q = 0; list A (leader at distance 10) holds id 2 at distance 10; list B (leader at 10.5) holds
+  // id 1 at distance 10 too, among 15 farther members: the tie goes to the lower id.
+  ProxyIndex index(2, 1.0f);
+  const float b_leader[2] = {-10.5f, 0.0f}, tie[2] = {-10.0f, 0.0f}, a[2] = {10.0f, 0.0f};
+  index.insert(b_leader);
+  index.insert(tie);
+  index.insert(a);
+  for (int j = 1; j <= 14; ++j) {
+    const float member[2] = {-10.5f, 0.05f * float(j)};
+    index.insert(member);
+  }
+  REQUIRE(index.leaders() == 2);
+  const float q[2] = {0.0f, 0.0f};
+  std::vector<uint32_t> got;
+  index.nearest(q, 1, 2, got);
+  CHECK(got == std::vector<uint32_t>{1});
+  index.nearest(q, 2, 2, got);
+  CHECK(got == std::vector<uint32_t>{1, 2});
+}

@@ -109,6 +109,28 @@ void ProxyIndex::rebuild() {
   }
 }
 
+namespace {
+
+// Offers entries ids[i] at distances d[i] (i < n) to the k nearest in heap. Once the heap is full,
+// a block of distances is first compared with the k-th at once: most entries of a list are farther.
+void offer_all(std::vector<Ranked>& heap, size_t k, const float* d, const uint32_t* ids, size_t n) {
+  constexpr size_t kBlock = 16;
+  size_t i = 0;
+  for (; i < n && heap.size() < k; ++i) keep_nearest(heap, k, d[i], ids[i]);
+  for (; i + kBlock <= n; i += kBlock) {
+    const float kth = heap.front().d;
+    unsigned pass = 0;
+    for (size_t j = 0; j < kBlock; ++j) pass |= unsigned(d[i + j] <= kth) << j;
+    for (; pass; pass &= pass - 1) {
+      const size_t j = i + size_t(__builtin_ctz(pass));
+      keep_nearest(heap, k, d[j], ids[j]);
+    }
+  }
+  for (; i < n; ++i) keep_nearest(heap, k, d[i], ids[i]);
+}
+
+}  // namespace
+
 void ProxyIndex::nearest(const float* q, int k, int probes, std::vector<uint32_t>& out) const {
   out.clear();
   if (k <= 0 || leaders_.empty()) return;
@@ -127,7 +149,7 @@ void ProxyIndex::nearest(const float* q, int k, int probes, std::vector<uint32_t
     const std::vector<uint32_t>& ids = lists_[leader.e];
     d.resize((ids.size() + kLanes - 1) / kLanes * kLanes);
     list_lanes_[leader.e].distances(q, dim_, d.data());
-    for (size_t i = 0; i < ids.size(); ++i) keep_nearest(heap, size_t(k), d[i], ids[i]);
+    offer_all(heap, size_t(k), d.data(), ids.data(), ids.size());
   }
   std::sort(heap.begin(), heap.end());
   for (const Ranked& r : heap) out.push_back(r.e);
