@@ -15,22 +15,24 @@ float plain_distance(const float* q, const float* y, int n) {
   return float(d);
 }
 
-void RowLanes::append(const float* row) {
+template <class Sum>
+void Lanes<Sum>::append(const float* x) {
   if (n_ % kLanes == 0) v_.resize(v_.size() + size_t(dim_) * kLanes, 0.0f);
   float* block = v_.data() + (n_ / kLanes) * size_t(dim_) * kLanes;
-  for (int i = 0; i < dim_; ++i) block[size_t(i) * kLanes + n_ % kLanes] = row[i];
+  for (int i = 0; i < dim_; ++i) block[size_t(i) * kLanes + n_ % kLanes] = x[i];
   ++n_;
 }
 
-void RowLanes::distances(const float* q, float* out) const {
+template <class Sum>
+void Lanes<Sum>::distances(const float* q, float* out) const {
   for (size_t b = 0; b * kLanes < n_; ++b) {
     const float* block = v_.data() + b * size_t(dim_) * kLanes;
-    double s[kLanes] = {};
+    Sum s[kLanes] = {};
     for (int i = 0; i < dim_; ++i) {
       const float qi = q[i];
       const float* y = block + size_t(i) * kLanes;
       for (size_t j = 0; j < kLanes; ++j) {
-        const double d = double(qi - y[j]);
+        const Sum d = Sum(qi - y[j]);
         s[j] += d * d;
       }
     }
@@ -38,34 +40,14 @@ void RowLanes::distances(const float* q, float* out) const {
   }
 }
 
+template class Lanes<float>;
+template class Lanes<double>;
+
 size_t ProxyIndex::leader_budget(size_t n) { return 64 + 2 * size_t(std::sqrt(double(n))); }
 
-ProxyIndex::ProxyIndex(int dim, float radius) : dim_(dim), radius_(radius) {
+ProxyIndex::ProxyIndex(int dim, float radius) : dim_(dim), radius_(radius), leader_lanes_(dim) {
   if (dim <= 0 || !(radius > 0) || !std::isfinite(radius))
     throw InputError("proxy index: dimension and radius must be positive");
-}
-
-void ProxyIndex::Lanes::append(const float* x, int dim) {
-  if (n % kLanes == 0) v.resize(v.size() + size_t(dim) * kLanes, 0.0f);
-  float* block = v.data() + (n / kLanes) * size_t(dim) * kLanes;
-  for (int i = 0; i < dim; ++i) block[size_t(i) * kLanes + n % kLanes] = x[i];
-  ++n;
-}
-
-void ProxyIndex::Lanes::distances(const float* q, int dim, float* out) const {
-  for (size_t b = 0; b * kLanes < n; ++b) {
-    const float* block = v.data() + b * size_t(dim) * kLanes;
-    float s[kLanes] = {};
-    for (int i = 0; i < dim; ++i) {
-      const float qi = q[i];
-      const float* y = block + size_t(i) * kLanes;
-      for (size_t j = 0; j < kLanes; ++j) {
-        const float d = qi - y[j];
-        s[j] += d * d;
-      }
-    }
-    std::copy(s, s + kLanes, out + b * kLanes);
-  }
 }
 
 void ProxyIndex::insert(const float* v) {
@@ -79,7 +61,7 @@ void ProxyIndex::assign(uint32_t id) {
   const float* v = vectors_.data() + size_t(id) * size_t(dim_);
   thread_local std::vector<float> d;
   d.resize((leaders_.size() + kLanes - 1) / kLanes * kLanes);
-  leader_lanes_.distances(v, dim_, d.data());
+  leader_lanes_.distances(v, d.data());
   float best = std::numeric_limits<float>::infinity();
   size_t at = 0;
   for (size_t j = 0; j < leaders_.size(); ++j)
@@ -89,12 +71,12 @@ void ProxyIndex::assign(uint32_t id) {
     }
   if (leaders_.empty() || best > radius_ * radius_) {
     leaders_.push_back(id);
-    leader_lanes_.append(v, dim_);
+    leader_lanes_.append(v);
     lists_.push_back({id});
-    list_lanes_.emplace_back().append(v, dim_);
+    list_lanes_.emplace_back(dim_).append(v);
   } else {
     lists_[at].push_back(id);
-    list_lanes_[at].append(v, dim_);
+    list_lanes_[at].append(v);
   }
 }
 
@@ -102,7 +84,7 @@ void ProxyIndex::rebuild() {
   while (leaders_.size() > leader_budget(size())) {
     radius_ *= 2;
     leaders_.clear();
-    leader_lanes_ = {};
+    leader_lanes_ = Lanes<float>(dim_);
     lists_.clear();
     list_lanes_.clear();
     for (uint32_t id = 0; id < size(); ++id) assign(id);
@@ -137,7 +119,7 @@ void ProxyIndex::nearest(const float* q, int k, int probes, std::vector<uint32_t
   thread_local std::vector<float> d;
   thread_local std::vector<Ranked> near_leaders, heap;
   d.resize((leaders_.size() + kLanes - 1) / kLanes * kLanes);
-  leader_lanes_.distances(q, dim_, d.data());
+  leader_lanes_.distances(q, d.data());
   near_leaders.clear();
   const size_t p = std::min(leaders_.size(), size_t(std::max(1, probes)));
   for (size_t j = 0; j < leaders_.size(); ++j) keep_nearest(near_leaders, p, d[j], uint32_t(j));
@@ -148,7 +130,7 @@ void ProxyIndex::nearest(const float* q, int k, int probes, std::vector<uint32_t
   for (const Ranked& leader : near_leaders) {
     const std::vector<uint32_t>& ids = lists_[leader.e];
     d.resize((ids.size() + kLanes - 1) / kLanes * kLanes);
-    list_lanes_[leader.e].distances(q, dim_, d.data());
+    list_lanes_[leader.e].distances(q, d.data());
     offer_all(heap, size_t(k), d.data(), ids.data(), ids.size());
   }
   std::sort(heap.begin(), heap.end());

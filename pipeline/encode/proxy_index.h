@@ -18,24 +18,30 @@ namespace btfvq {
 // |q - y|^2 over n values, each squared difference and the sum in double, in value order.
 float plain_distance(const float* q, const float* y, int n);
 
-// Rows of `dim` floats kept for a linear scan by plain_distance (the P2 and I2 candidate orders scan
-// every entry's row means, up to 130k entries at 256 x 256): value-major blocks of kLanes rows, so
-// that one pass computes kLanes distances at once, each summed in value order -- the same numbers
-// as plain_distance row by row (this file is built without contraction into FMA).
-class RowLanes {
+// Vectors of `dim` floats kept for linear scans in value-major blocks of kLanes (value i of entry e
+// at block e / kLanes, slot i * kLanes + e % kLanes; unused slots 0), so that one pass computes
+// kLanes squared distances at once. Each distance is still summed in value order, in Sum: the same
+// number as one vector at a time (this file is built without contraction into FMA). Sum = double
+// gives plain_distance's numbers (the P2 and I2 candidate orders scan every entry's row means, up
+// to 130k entries at 256 x 256); the proxy index sums in float.
+template <class Sum>
+class Lanes {
  public:
-  explicit RowLanes(int dim = 0) : dim_(dim) {}
-  void append(const float* row);
-  size_t size() const { return n_; }
-  // out[e] = plain_distance(q, row e) for every row; out holds size() rounded up to kLanes.
-  void distances(const float* q, float* out) const;
   static constexpr size_t kLanes = 8;
+  explicit Lanes(int dim = 0) : dim_(dim) {}
+  void append(const float* x);
+  size_t size() const { return n_; }
+  // out[e] = |q - entry e|^2 for every entry; out holds size() rounded up to kLanes.
+  void distances(const float* q, float* out) const;
 
  private:
   int dim_ = 0;
   size_t n_ = 0;
   std::vector<float> v_;
 };
+extern template class Lanes<float>;
+extern template class Lanes<double>;
+using RowLanes = Lanes<double>;
 
 class ProxyIndex {
  public:
@@ -58,17 +64,7 @@ class ProxyIndex {
   void nearest(const float* q, int k, int probes, std::vector<uint32_t>& out) const;
 
  private:
-  // Vectors in blocks of kLanes, value-major (value i of entry e at block e / kLanes, slot
-  // i * kLanes + e % kLanes; unused slots 0), so that a scan computes kLanes squared distances at
-  // once. Each distance is still summed in value order: the same number as one vector at a time.
-  static constexpr size_t kLanes = 8;
-  struct Lanes {
-    std::vector<float> v;
-    size_t n = 0;
-    void append(const float* x, int dim);
-    // out[e] = |q - entry e|^2 for every entry (out holds a multiple of kLanes).
-    void distances(const float* q, int dim, float* out) const;
-  };
+  static constexpr size_t kLanes = Lanes<float>::kLanes;
   void assign(uint32_t id);
   void rebuild();
 
@@ -76,9 +72,9 @@ class ProxyIndex {
   float radius_ = 0;
   std::vector<float> vectors_;                // size() x dim
   std::vector<uint32_t> leaders_;             // ids of the leaders
-  Lanes leader_lanes_;                        // their vectors
+  Lanes<float> leader_lanes_;                 // their vectors
   std::vector<std::vector<uint32_t>> lists_;  // per leader: ids of its members (itself first)
-  std::vector<Lanes> list_lanes_;             // per leader: its members' vectors
+  std::vector<Lanes<float>> list_lanes_;      // per leader: its members' vectors
 };
 
 }  // namespace btfvq
