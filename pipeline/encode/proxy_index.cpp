@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+#include <type_traits>
 #include <limits>
 
 #include <btfvq/error.h>
@@ -23,18 +25,27 @@ void Lanes<Sum>::append(const float* x) {
   ++n_;
 }
 
+// kLanes values as one vector (GCC/Clang vector extensions: element-wise, in the same order as the
+// scalar loop, so the same numbers on any vector width, SSE2 included).
+typedef float FloatLanes __attribute__((vector_size(sizeof(float) * 8)));
+typedef double DoubleLanes __attribute__((vector_size(sizeof(double) * 8)));
+template <class Sum>
+using SumLanes = std::conditional_t<std::is_same_v<Sum, float>, FloatLanes, DoubleLanes>;
+
 template <class Sum>
 void Lanes<Sum>::distances(const float* q, float* out) const {
+  static_assert(kLanes == 8);
   for (size_t b = 0; b * kLanes < n_; ++b) {
     const float* block = v_.data() + b * size_t(dim_) * kLanes;
-    Sum s[kLanes] = {};
+    SumLanes<Sum> s = {};
     for (int i = 0; i < dim_; ++i) {
-      const float qi = q[i];
-      const float* y = block + size_t(i) * kLanes;
-      for (size_t j = 0; j < kLanes; ++j) {
-        const Sum d = Sum(qi - y[j]);
-        s[j] += d * d;
-      }
+      FloatLanes y;
+      std::memcpy(&y, block + size_t(i) * kLanes, sizeof y);
+      const FloatLanes diff = q[i] - y;
+      SumLanes<Sum> d;
+      if constexpr (std::is_same_v<Sum, float>) d = diff;
+      else d = __builtin_convertvector(diff, SumLanes<Sum>);
+      s += d * d;
     }
     for (size_t j = 0; j < kLanes; ++j) out[b * kLanes + j] = float(s[j]);
   }
@@ -74,9 +85,11 @@ void ProxyIndex::assign(uint32_t id) {
     leader_lanes_.append(v);
     lists_.push_back({id});
     list_lanes_.emplace_back(dim_).append(v);
+    spread_.push_back(0);
   } else {
     lists_[at].push_back(id);
     list_lanes_[at].append(v);
+    spread_[at] = std::max(spread_[at], std::sqrt(double(best)));
   }
 }
 
@@ -87,6 +100,7 @@ void ProxyIndex::rebuild() {
     leader_lanes_ = Lanes<float>(dim_);
     lists_.clear();
     list_lanes_.clear();
+    spread_.clear();
     for (uint32_t id = 0; id < size(); ++id) assign(id);
   }
 }
@@ -111,6 +125,15 @@ void offer_all(std::vector<Ranked>& heap, size_t k, const float* d, const uint32
   for (; i < n; ++i) keep_nearest(heap, k, d[i], ids[i]);
 }
 
+// Whether every member of a list is farther from q than the k-th: q is at squared distance dl from
+// the leader and each member within `spread` of it, so at least sqrt(dl) - spread from q. The float
+// distances are within a few 1e-6 (relative) of the exact ones; the margins are 1e-5.
+bool list_beyond(float dl, double spread, float kth) {
+  const double root = std::sqrt(double(dl));
+  const double lower = root - spread - 1e-5 * (root + spread);
+  return lower > 0 && lower * lower * (1 - 1e-5) > double(kth);
+}
+
 }  // namespace
 
 void ProxyIndex::nearest(const float* q, int k, int probes, std::vector<uint32_t>& out) const {
@@ -128,6 +151,7 @@ void ProxyIndex::nearest(const float* q, int k, int probes, std::vector<uint32_t
   // entries past a long list's first few hundred, and their rows were inserted again.
   heap.clear();
   for (const Ranked& leader : near_leaders) {
+    if (heap.size() == size_t(k) && list_beyond(leader.d, spread_[leader.e], heap.front().d)) continue;
     const std::vector<uint32_t>& ids = lists_[leader.e];
     d.resize((ids.size() + kLanes - 1) / kLanes * kLanes);
     list_lanes_[leader.e].distances(q, d.data());

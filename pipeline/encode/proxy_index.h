@@ -75,6 +75,7 @@ class ProxyIndex {
   Lanes<float> leader_lanes_;                 // their vectors
   std::vector<std::vector<uint32_t>> lists_;  // per leader: ids of its members (itself first)
   std::vector<Lanes<float>> list_lanes_;      // per leader: its members' vectors
+  std::vector<double> spread_;                // per leader: its farthest member's distance from it
 };
 
 }  // namespace btfvq
