@@ -364,8 +364,13 @@ TEST_CASE("searches, parts searched ahead and composition checks on two threads 
     // Parts were searched ahead, and some had to take entries inserted meanwhile into account.
     CHECK(b.stats().ahead > 0);
     CHECK(b.stats().ahead_extended > 0);
+    // Rows of new planes were searched ahead, and some again after a row before them inserted.
+    CHECK(b.stats().rows_ahead > 0);
+    CHECK(b.stats().rows_redone > 0);
     MESSAGE(std::string(metric == Metric::SSIM ? "SSIM" : "MSE") << " limit " << limit << ": " << b.stats().ahead << " parts ahead, " << b.stats().ahead_extended
-                     << " extended, " << b.stats().ahead_redone << " redone");
+                     << " extended, " << b.stats().ahead_redone << " redone; " << b.stats().rows_ahead
+                     << " rows ahead, " << b.stats().rows_redone << " redone");
     CHECK(a.stats().ahead == 0);
+    CHECK(a.stats().rows_ahead == 0);
   }
 }

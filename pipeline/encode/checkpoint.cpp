@@ -52,7 +52,7 @@ json stats_json(const EncoderStats& s) {
   return {{"texels", s.texels}, {"comparisons", s.comparisons}, {"pruned", s.pruned}, {"fallbacks", s.fallbacks},
           {"laesa_skipped", s.laesa_skipped}, {"miss", s.inserted_miss}, {"retry", s.inserted_retry},
           {"exact", s.inserted_exact}, {"reused", s.reused},
-          {"ahead", {s.ahead, s.ahead_extended, s.ahead_redone}}};
+          {"ahead", {s.ahead, s.ahead_extended, s.ahead_redone}}, {"rows_ahead", {s.rows_ahead, s.rows_redone}}};
 }
 
 EncoderStats stats_of(const json& j) {
@@ -70,6 +70,10 @@ EncoderStats stats_of(const json& j) {
     s.ahead = j["ahead"].at(0);
     s.ahead_extended = j["ahead"].at(1);
     s.ahead_redone = j["ahead"].at(2);
+  }
+  if (j.contains("rows_ahead")) {  // nor those written before the rows were
+    s.rows_ahead = j["rows_ahead"].at(0);
+    s.rows_redone = j["rows_ahead"].at(1);
   }
   return s;
 }

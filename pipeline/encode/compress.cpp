@@ -311,7 +311,9 @@ CompressReport compress_one(Database& db, const MeasuredSample& sample, const st
                            {"reused_identical", r.encoder.reused},
                            {"searched_ahead", {{"parts", r.encoder.ahead},
                                                {"extended", r.encoder.ahead_extended},
-                                               {"redone", r.encoder.ahead_redone}}},
+                                               {"redone", r.encoder.ahead_redone},
+                                               {"rows", r.encoder.rows_ahead},
+                                               {"rows_redone", r.encoder.rows_redone}}},
                            {"reclaimed", reclaimed.removed},
                            {"reachable", reclaimed.reachable}}},
               {"codebook_sizes", CodebookSizes::of(db.codebooks)}};

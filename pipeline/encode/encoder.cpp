@@ -113,6 +113,8 @@ void EncoderStats::add(const EncoderStats& o) {
   ahead += o.ahead;
   ahead_extended += o.ahead_extended;
   ahead_redone += o.ahead_redone;
+  rows_ahead += o.rows_ahead;
+  rows_redone += o.rows_redone;
   for (CodebookId id : kAllCodebooks) {
     inserted_miss[id] += o.inserted_miss[id];
     inserted_retry[id] += o.inserted_retry[id];
@@ -147,7 +149,27 @@ struct Encoder::Ctx {
     std::vector<SignatureTable::Neighbour> near;
   };
   std::unordered_map<const float*, Memo> memo[2];
+  std::vector<Ctx> side;  // of the pool's threads, for searches made beside this one (side_contexts)
 };
+
+namespace {
+// ctx.side for n threads: ctx's SSIM constants, scratch of its size, no counts.
+std::vector<Encoder::Ctx>& side_contexts(Encoder::Ctx& ctx, size_t n) {
+  ctx.side.resize(n);
+  for (Encoder::Ctx& c : ctx.side) {
+    c.k = ctx.k;
+    c.scratch.resize(ctx.scratch.size());
+  }
+  return ctx.side;
+}
+// Adds the counts of ctx.side into ctx's, once its searches are done.
+void collect_side_counts(Encoder::Ctx& ctx) {
+  for (Encoder::Ctx& c : ctx.side) {
+    ctx.counts.add(c.counts);
+    c.counts = {};
+  }
+}
+}  // namespace
 
 // The input slice: `planes` planes with channels [first, first + channels), values in units `unit`
 // (absolute = offset + unit (v - offset) for the channels an RGB scale acts on).
@@ -839,19 +861,49 @@ std::vector<Encoder::Speculation> Encoder::speculate(const std::vector<Query>& p
     spec[k].order = ctx.order;
     spec[k].end = signatures(level).size();
   }
-  std::vector<Ctx> slot(parallel_slots(parts.size(), {threads_, 1}));
-  for (Ctx& w : slot) {
-    w.k = ctx.k;
-    w.scratch.resize(ctx.scratch.size());
-  }
+  std::vector<Ctx>& slot = side_contexts(ctx, parallel_slots(parts.size(), {threads_, 1}));
   parallel_for(0, parts.size(), [&](size_t first, size_t last, size_t w) {
     for (size_t k = first; k < last; ++k)
       spec[k].best = search_composite_in(parts[k], level, spec[k].order, bound_for(threshold, parts[k].values),
                                          slot[w], 1);
   }, ParallelOptions{threads_, 1});
-  for (const Ctx& w : slot) ctx.counts.add(w.counts);
+  collect_side_counts(ctx);
   ctx.counts.ahead += parts.size();
   return spec;
+}
+
+namespace {
+// Rows a thread searches ahead per window (rows_ahead): a row that inserts costs the searches of
+// the window's rows after it, which are made again.
+constexpr int kRowsAheadPerThread = 2;
+}  // namespace
+
+template <class Size, class Search, class Commit>
+void Encoder::rows_ahead(int n, Ctx& ctx, Size size, Search search, Commit commit) {
+  if (threads_ <= 1) {
+    for (int a = 0; a < n; ++a) commit(a, search(a, ctx));
+    return;
+  }
+  const int window = kRowsAheadPerThread * int(threads_);
+  std::vector<Match> found(static_cast<size_t>(window));
+  for (int a = 0; a < n;) {
+    const int w = std::min(window, n - a);
+    std::vector<Ctx>& side = side_contexts(ctx, parallel_slots(size_t(w), {threads_, 1}));
+    parallel_for(0, size_t(w), [&](size_t first, size_t last, size_t slot) {
+      for (size_t i = first; i < last; ++i) found[i] = search(a + int(i), side[slot]);
+    }, ParallelOptions{threads_, 1});
+    collect_side_counts(ctx);
+    const size_t before = size();
+    int done = 0;
+    while (done < w) {
+      commit(a + done, found[size_t(done)]);
+      ++done;
+      if (size() != before) break;
+    }
+    ctx.counts.rows_ahead += size_t(w);
+    ctx.counts.rows_redone += size_t(w - done);
+    a += done;
+  }
 }
 
 // The search of q now, from its speculative one. The order now is the k nearest of the entries the
@@ -1031,14 +1083,8 @@ P6Entry Encoder::encode_growing(const float* texel) {
   sync();
   Ctx ctx;
   const Match m = encode_p4(texel, ctx);
+  stats_.add(ctx.counts);  // the search counts: ctx inserts nothing
   stats_.texels += 1;
-  stats_.comparisons += ctx.counts.comparisons;
-  stats_.pruned += ctx.counts.pruned;
-  stats_.fallbacks += ctx.counts.fallbacks;
-  stats_.laesa_skipped += ctx.counts.laesa_skipped;
-  stats_.ahead += ctx.counts.ahead;
-  stats_.ahead_extended += ctx.counts.ahead_extended;
-  stats_.ahead_redone += ctx.counts.ahead_redone;
   P6Entry r;
   r.index = uint32_t(m.index);
   r.scale = m.scale;
@@ -1396,11 +1442,15 @@ uint32_t Encoder::encode_p2(const Query& q, Ctx& ctx, double cap) {
     const float* row = books_.p1.row(idx[size_t(a)]);
     for (int b = 0; b < nb; ++b) recon[size_t(a * nb + b)] = r.scale * row[b];
   };
-  for (int a = 0; a < na; ++a) {
-    const Match r = encode_p1(x.v + a * nb, q.unit, ctx, false);
-    exact[size_t(a)] = r.score >= 1.0;
-    place(a, r);
-  }
+  const double row_bound = bound_for(thresholds_.p1, size_t(nb));
+  rows_ahead(
+      na, ctx, [&] { return p1_store_.size(); },
+      [&](int a, Ctx& c) { return search_p1(x.v + a * nb, q.unit, row_bound, c); },
+      [&](int a, Match r) {
+        if (r.index < 0) r = store_p1(x.v + a * nb, false);
+        exact[size_t(a)] = r.score >= 1.0;
+        place(a, r);
+      });
   {
     const CauseScope<Cause> cause(cause_, kRetry);
     auto reuse = [&](int a, double now, const auto& badness) {
@@ -1414,7 +1464,7 @@ uint32_t Encoder::encode_p2(const Query& q, Ctx& ctx, double cap) {
           [&] { place(a, kept); });
     };
     repair_parts(g2_, false, &x, 0, 1, q.unit, recon.data(), exact, bound, ctx, reuse,
-                 [&](int a) { place(a, encode_p1(x.v + a * nb, q.unit, ctx, true)); });
+                 [&](int a) { place(a, store_p1(x.v + a * nb, true)); });
   }
   const uint32_t e = insert_row(CodebookId::P2, p2_rows_, books_.p2_index, idx.data(), &books_.p2_scale, sc.data(), false);
   return e;
@@ -1429,27 +1479,39 @@ uint32_t Encoder::encode_i2(const Query& q, Ctx& ctx, double cap) {
   std::vector<uint32_t> idx(static_cast<size_t>(na));
   std::vector<uint8_t> exact(static_cast<size_t>(na), 0);
   const ChannelView x[2] = {q.at(0, 1), q.at(0, 2)};
-  auto encode_row = [&](int a, bool ex) {
-    std::copy(x[0].v + a * nb, x[0].v + (a + 1) * nb, row.begin());
-    std::copy(x[1].v + a * nb, x[1].v + (a + 1) * nb, row.begin() + nb);
-    idx[size_t(a)] = encode_i1(row.data(), q.unit, ctx, ex);
-    const float* y = i1_store_.values(idx[size_t(a)]);
-    std::copy(y, y + nb, recon.begin() + a * nb);
-    std::copy(y + nb, y + 2 * nb, recon.begin() + n + a * nb);
-  };
-  for (int a = 0; a < na; ++a) encode_row(a, false);
   auto place = [&](int a, uint32_t e) {
     idx[size_t(a)] = e;
     const float* y = i1_store_.values(e);
     std::copy(y, y + nb, recon.begin() + a * nb);
     std::copy(y + nb, y + 2 * nb, recon.begin() + n + a * nb);
   };
+  // The row a as one (a, then b) vector, in `out` (2 nb floats).
+  auto row_of = [&](int a, float* out) {
+    std::copy(x[0].v + a * nb, x[0].v + (a + 1) * nb, out);
+    std::copy(x[1].v + a * nb, x[1].v + (a + 1) * nb, out + nb);
+  };
+  auto encode_row = [&](int a, bool ex) {
+    row_of(a, row.data());
+    place(a, compose_i1(row.data(), q.unit, ctx, ex));
+  };
+  const double row_bound = bound_for(thresholds_.i1, size_t(2 * nb));
+  rows_ahead(
+      na, ctx, [&] { return i1_store_.size(); },
+      [&](int a, Ctx& c) {
+        thread_local std::vector<float> own;
+        own.resize(size_t(2 * nb));
+        row_of(a, own.data());
+        return search_i1(own.data(), q.unit, row_bound, c);
+      },
+      [&](int a, const Match& r) {
+        if (r.index >= 0) place(a, uint32_t(r.index));
+        else encode_row(a, false);
+      });
   {
     const CauseScope<Cause> cause(cause_, kRetry);
     auto reuse = [&](int a, double now, const auto& badness) {
       const uint32_t kept = idx[size_t(a)];
-      std::copy(x[0].v + a * nb, x[0].v + (a + 1) * nb, row.begin());
-      std::copy(x[1].v + a * nb, x[1].v + (a + 1) * nb, row.begin() + nb);
+      row_of(a, row.data());
       i1_index_.nearest(row.data(), kReuseCandidates, kProbes, ctx.order);
       const std::vector<uint32_t> candidates = ctx.order;
       return keep_best(candidates, now, [&](uint32_t e) { place(a, e); }, badness, [&] { place(a, kept); });
@@ -1460,12 +1522,8 @@ uint32_t Encoder::encode_i2(const Query& q, Ctx& ctx, double cap) {
   return e;
 }
 
-Encoder::Match Encoder::encode_p1(const float* row, float unit, Ctx& ctx, bool exact) {
+Encoder::Match Encoder::store_p1(const float* row, bool exact) {
   const int nb = grid_.n_beta;
-  if (!exact) {
-    const Match found = search_p1(row, unit, bound_for(thresholds_.p1, size_t(nb)), ctx);
-    if (found.index >= 0) return found;
-  }
   double sum = 0;
   for (int b = 0; b < nb; ++b) sum += row[b];
   std::vector<float> density(static_cast<size_t>(nb));
@@ -1474,13 +1532,9 @@ Encoder::Match Encoder::encode_p1(const float* row, float unit, Ctx& ctx, bool e
   return {int64_t(e), 1.0, float(std::max(0.0, sum))};
 }
 
-uint32_t Encoder::encode_i1(const float* row, float unit, Ctx& ctx, bool exact) {
+uint32_t Encoder::compose_i1(const float* row, float unit, Ctx& ctx, bool exact) {
   const int nb = grid_.n_beta;
   const double bound = bound_for(thresholds_.i1, size_t(2 * nb));
-  if (!exact) {
-    const Match found = search_i1(row, unit, bound, ctx);
-    if (found.index >= 0) return uint32_t(found.index);
-  }
   std::vector<float> recon(static_cast<size_t>(2 * nb));
   std::vector<uint32_t> idx(static_cast<size_t>(nb));
   std::vector<uint8_t> exact_c(static_cast<size_t>(nb), 0);

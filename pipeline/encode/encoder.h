@@ -58,6 +58,9 @@ struct EncoderStats {
   // Composition parts searched ahead of their turn on two threads (Encoder::speculate), of which
   // the entries inserted meanwhile were scored on top (extended) or the search made again (redone).
   uint64_t ahead = 0, ahead_extended = 0, ahead_redone = 0;
+  // P1 and I1 rows of a plane searched ahead (Encoder::rows_ahead), of which searched again because
+  // a row before them inserted.
+  uint64_t rows_ahead = 0, rows_redone = 0;
   // New rows per code-book by cause: a search miss whose composition matched at once, one inserted
   // while re-encoding a composition that missed its parent's threshold (retry), or an exact one.
   CodebookSizes inserted_miss, inserted_retry, inserted_exact;
@@ -249,8 +252,16 @@ class Encoder {
                     float* y, std::vector<uint8_t>& exact, double bound, Ctx& ctx, Reuse reuse, MakeExact make_exact);
   // The raw least-squares scale of P1 row e for the absolute row x (the P2 scale of a density).
   float p1_scale(const float* x, uint32_t e) const;
-  Match encode_p1(const float* row, float unit, Ctx& ctx, bool exact);
-  uint32_t encode_i1(const float* row /* a, then b */, float unit, Ctx& ctx, bool exact);
+  // A P1 row of the row's shape (its density) with the row's sum as its scale: found stored or appended.
+  Match store_p1(const float* row, bool exact);
+  // An I1 row of C entries for `row` (a, then b), repaired to the I1 threshold unless exact.
+  uint32_t compose_i1(const float* row, float unit, Ctx& ctx, bool exact);
+  // The rows [0, n) of a plane, each searched by search(row, ctx) -> Match and then handed in row
+  // order to commit(row, match), which inserts on a miss. On several threads the searches run ahead
+  // in windows against the code-book as it is; once a commit has grown it (size() moved) the rows
+  // after that one are searched again: the same matches as searching each row at its turn.
+  template <class Size, class Search, class Commit>
+  void rows_ahead(int n, Ctx& ctx, Size size, Search search, Commit commit);
   uint32_t encode_c(float a, float b, float unit, bool exact);
 
   // Rows by content (hash -> ids), so that no row is stored twice.
