@@ -155,6 +155,38 @@ TEST_CASE("RowLanes: every row's distance is plain_distance's, whatever the numb
     }
 }
 
+TEST_CASE("RowLanes::nearest: the k nearest by (distance, index), on one thread or two, as sorting every row gives") {
+  const int dim = 11;
+  // Each vector 8 times (ties at every distance), from below to well above the size at which the
+  // scan is spread over threads.
+  for (size_t distinct : {3u, 500u, 2500u}) {
+    const std::vector<float> once = random_vectors(distinct, dim, 17);
+    RowLanes lanes(dim);
+    std::vector<float> rows;
+    for (int copy = 0; copy < 8; ++copy) rows.insert(rows.end(), once.begin(), once.end());
+    const size_t n = rows.size() / dim;
+    for (size_t e = 0; e < n; ++e) lanes.append(&rows[e * dim]);
+    for (size_t at : {size_t(0), distinct / 2}) {
+      const float* q = &once[at * dim];
+      std::vector<Ranked> all;
+      for (size_t e = 0; e < n; ++e) all.push_back({plain_distance(q, &rows[e * dim], dim), uint32_t(e)});
+      std::sort(all.begin(), all.end());
+      for (size_t k : {1u, 32u, 100u}) {
+        const std::vector<Ranked> want(all.begin(), all.begin() + std::min(k, n));
+        for (size_t threads : {1u, 2u}) {
+          std::vector<Ranked> got;
+          lanes.nearest(q, k, threads, got);
+          REQUIRE(got.size() == want.size());
+          for (size_t i = 0; i < want.size(); ++i) {
+            CHECK(got[i].e == want[i].e);
+            CHECK(got[i].d == want[i].d);
+          }
+        }
+      }
+    }
+  }
+}
+
 TEST_CASE("equal distances: the k nearest are the lowest ids among them, as the linear scan has it") {
   const int dim = 11;
   const auto distinct = random_vectors(100, dim, 5);

@@ -608,34 +608,6 @@ Q sub_query(const Q& parent, int first_plane, int planes) {
   return q;
 }
 
-// Candidate order: the `k` best by proxy first, then the others in index order; with a limit, only
-// the `limit` best by proxy (an approximate search, see docs/similarity.md). dist(e) is entry e's
-// proxy; the best are the k smallest by (proxy, index), kept in one pass (a bounded heap turns most
-// entries away with one comparison: the searches of P2 and I2 scan every entry, up to 130k at 256).
-template <class Dist>
-void order_candidates(uint32_t n, int k, int limit, Dist dist, std::vector<uint32_t>& order,
-                      std::vector<uint8_t>& tried) {
-  order.clear();
-  if (limit > 0) k = std::max(k, limit);
-  if (k <= 0 || n <= uint32_t(k)) {
-    for (uint32_t e = 0; e < n; ++e) order.push_back(e);
-    return;
-  }
-  thread_local std::vector<Ranked> best;
-  best.clear();
-  for (uint32_t e = 0; e < n; ++e) keep_nearest(best, size_t(k), dist(e), e);
-  std::sort(best.begin(), best.end());
-  for (const Ranked& r : best) order.push_back(r.e);
-  if (limit > 0) {
-    order.resize(size_t(limit));
-    return;
-  }
-  tried.assign(n, 0);
-  for (uint32_t e : order) tried[e] = 1;
-  for (uint32_t e = 0; e < n; ++e)
-    if (!tried[e]) order.push_back(e);
-}
-
 }  // namespace
 
 // Runs a nearest-code-vector search: eval(e, bound, &score, &scale) scores candidate e or returns
@@ -929,13 +901,33 @@ Encoder::Match Encoder::confirm(const Query& q, int level, double bound, const S
   return m.index >= 0 && (s.best.index < 0 || m.score > s.best.score) ? m : s.best;
 }
 
-// The candidate order of a P2 or I2 search: by the plain distance of the row means.
+// The candidate order of a P2 or I2 search, by the plain distance of the row means: the k =
+// max(proxy_candidates, candidate_limit) nearest first, then the others in index order; with a
+// limit, only the `limit` nearest (an approximate search, see docs/similarity.md). The nearest are
+// the k smallest by (distance, index), kept in one pass (a bounded heap turns most entries away
+// with one comparison; the scans cover every entry, up to 130k at 256 x 256), on the pool's threads
+// when there are entries enough (the same order: RowLanes::nearest).
 void Encoder::order_by_rows(const float* qsig, const RowLanes& rows, Ctx& ctx) const {
-  thread_local std::vector<float> d;
-  d.resize((rows.size() + RowLanes::kLanes - 1) / RowLanes::kLanes * RowLanes::kLanes);
-  rows.distances(qsig, d.data());
-  order_candidates(uint32_t(rows.size()), settings_.pruning ? settings_.proxy_candidates : 0, settings_.candidate_limit,
-                   [&](uint32_t e) { return d[e]; }, ctx.order, ctx.tried);
+  const uint32_t n = uint32_t(rows.size());
+  const int limit = settings_.candidate_limit;
+  const size_t k = size_t(std::max(settings_.pruning ? settings_.proxy_candidates : 0, std::max(limit, 0)));
+  std::vector<uint32_t>& order = ctx.order;
+  order.clear();
+  if (k == 0 || n <= k) {
+    for (uint32_t e = 0; e < n; ++e) order.push_back(e);
+    return;
+  }
+  thread_local std::vector<Ranked> best;
+  rows.nearest(qsig, k, threads_, best);
+  for (const Ranked& r : best) order.push_back(r.e);
+  if (limit > 0) {
+    order.resize(size_t(limit));
+    return;
+  }
+  ctx.tried.assign(n, 0);
+  for (uint32_t e : order) ctx.tried[e] = 1;
+  for (uint32_t e = 0; e < n; ++e)
+    if (!ctx.tried[e]) order.push_back(e);
 }
 
 Encoder::Match Encoder::search_p2(const Query& q, double threshold_score, Ctx& ctx) const {

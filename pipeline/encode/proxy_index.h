@@ -13,6 +13,8 @@
 #include <cstdint>
 #include <vector>
 
+#include "pipeline/util/bounded_heap.h"
+
 namespace btfvq {
 
 // |q - y|^2 over n values, each squared difference and the sum in double, in value order.
@@ -31,8 +33,16 @@ class Lanes {
   explicit Lanes(int dim = 0) : dim_(dim) {}
   void append(const float* x);
   size_t size() const { return n_; }
-  // out[e] = |q - entry e|^2 for every entry; out holds size() rounded up to kLanes.
-  void distances(const float* q, float* out) const;
+  size_t blocks() const { return (n_ + kLanes - 1) / kLanes; }
+  // out[e] = |q - entry e|^2 for every entry; out holds blocks() x kLanes.
+  void distances(const float* q, float* out) const { distances(q, out, 0, blocks()); }
+  // The same for the entries of blocks [first, last) only (out[e] for e in [first, last) x kLanes).
+  void distances(const float* q, float* out, size_t first, size_t last) const;
+  // The k nearest entries to q (all if fewer), nearest first, ties to the lower index. On up to
+  // `threads` threads when there are entries enough: each keeps the k nearest of a run of entries,
+  // and the k smallest of those are the k nearest of all ((distance, index) is a total order), so
+  // the result does not depend on the threads.
+  void nearest(const float* q, size_t k, size_t threads, std::vector<Ranked>& out) const;
 
  private:
   int dim_ = 0;

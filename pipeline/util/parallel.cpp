@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <condition_variable>
 #include <exception>
 #include <mutex>
@@ -40,7 +41,7 @@ size_t grain_of(size_t n, const ParallelOptions& options) {
 }
 
 // One call's loop. The fields after `body` are shared between the threads that run it; `joined` and
-// `active` are guarded by the pool's mutex.
+// `active` are changed under the pool's mutex (`active` is read without it by a polling caller).
 struct Job {
   size_t begin, end, grain, chunks, max_threads;
   const detail::ChunkBody& body;
@@ -49,7 +50,7 @@ struct Job {
   std::mutex error_mutex;
   std::exception_ptr error;
   size_t joined = 1;  // the caller holds slot 0
-  size_t active = 0;  // pool threads inside work()
+  std::atomic<size_t> active{0};  // pool threads inside work()
   std::condition_variable helpers_done;
 
   bool open() const { return joined < max_threads && !failed && next_chunk.load() < chunks; }
@@ -93,6 +94,14 @@ class Pool {
     }
     std::unique_lock lock(mutex_);
     jobs_.erase(std::find(jobs_.begin(), jobs_.end(), &job));
+    if (job.active > 0) {
+      // No helper joins from here on; those inside finish their chunks about now, so poll before
+      // sleeping (see wait_for_job), then take the mutex, which a helper holds until it is done with
+      // the job.
+      lock.unlock();
+      poll_until([&] { return job.active.load(std::memory_order_acquire) == 0; });
+      lock.lock();
+    }
     job.helpers_done.wait(lock, [&] { return job.active == 0; });
   }
 
@@ -101,8 +110,24 @@ class Pool {
     {
       std::lock_guard lock(mutex_);
       jobs_.push_back(&job);
+      published_.fetch_add(1, std::memory_order_release);
     }
     wake_.notify_all();
+  }
+
+  // Waits (mutex held on entry and return) until a job has room. A helper polls for a while before
+  // it sleeps: the growing phases publish small jobs back to back (a few tens of microseconds of
+  // work each), and waking a sleeping thread takes about as long on a virtual machine (measured
+  // here: a call of two 8-microsecond chunks took 34 microseconds with a sleeping helper).
+  Job* wait_for_job(std::unique_lock<std::mutex>& lock) {
+    if (Job* job = open_job()) return job;
+    const uint64_t seen = published_.load(std::memory_order_acquire);
+    lock.unlock();
+    poll_until([&] { return published_.load(std::memory_order_acquire) != seen; });
+    lock.lock();
+    Job* job = nullptr;
+    wake_.wait(lock, [&] { return (job = open_job()) != nullptr; });
+    return job;
   }
 
   Job* open_job() const {
@@ -115,8 +140,7 @@ class Pool {
     inside_body = true;
     std::unique_lock lock(mutex_);
     for (;;) {
-      Job* job = nullptr;
-      wake_.wait(lock, [&] { return (job = open_job()) != nullptr; });
+      Job* job = wait_for_job(lock);
       const size_t slot = job->joined++;
       ++job->active;
       lock.unlock();
@@ -127,8 +151,16 @@ class Pool {
     }
   }
 
+  static constexpr std::chrono::microseconds kPoll{100};
+  template <class Done>
+  static void poll_until(Done done) {
+    const auto until = std::chrono::steady_clock::now() + kPoll;
+    while (!done() && std::chrono::steady_clock::now() < until) {
+    }
+  }
   std::mutex mutex_;
   std::condition_variable wake_;
+  std::atomic<uint64_t> published_{0};  // jobs published so far: what a polling helper watches
   std::vector<Job*> jobs_;  // calls under way, oldest first
   std::vector<std::thread> threads_;
 };
