@@ -73,8 +73,8 @@ struct Job {
   }
 };
 
-// hardware_concurrency - 1 threads that sleep until a call publishes a job with room for them. Made
-// once and never destroyed: joining at exit would race static destructors and hang a forked child.
+// hardware_concurrency - 1 threads that wait for a call to publish a job with room for them (polling
+// for kPoll after their last job, then asleep). Made once and never destroyed: joining at exit would race static destructors and hang a forked child.
 class Pool {
  public:
   explicit Pool(size_t helpers) {
