@@ -151,6 +151,9 @@ TEST_CASE("RowLanes: every row's distance is plain_distance's, whatever the numb
         }
         CHECK(d[e] == float(want));
         CHECK(plain_distance(q.data(), &rows[e * size_t(dim)], dim) == float(want));
+        std::vector<float> back(static_cast<size_t>(dim), -1.0f);
+        lanes.row(e, back.data());
+        CHECK(std::equal(back.begin(), back.end(), rows.begin() + ptrdiff_t(e * size_t(dim))));
       }
     }
 }

@@ -373,12 +373,13 @@ void Encoder::cache_p2(uint32_t e) {
   }
   p2_store_.append(v.data());
   const float o = channel_offset(dyn_, 0);
+  std::vector<float> sig(static_cast<size_t>(na));
   for (int a = 0; a < na; ++a) {
     double s = 0;
     for (int b = 0; b < nb; ++b) s += v[size_t(a * nb + b)];
-    p2_sig_.push_back(float(s / nb) - o);
+    sig[size_t(a)] = float(s / nb) - o;
   }
-  p2_lanes_.append(&p2_sig_[size_t(e) * size_t(na)]);
+  p2_lanes_.append(sig.data());
 }
 
 void Encoder::cache_i2(uint32_t e) {
@@ -394,13 +395,14 @@ void Encoder::cache_i2(uint32_t e) {
     }
   }
   i2_store_.append(v.data());
+  std::vector<float> sig;
   for (int ch = 0; ch < 2; ++ch)
     for (int a = 0; a < na; ++a) {
       double s = 0;
       for (int b = 0; b < nb; ++b) s += v[size_t(ch * n + a * nb + b)];
-      i2_sig_.push_back(float(s / nb) - channel_offset(dyn_, 1 + ch));
+      sig.push_back(float(s / nb) - channel_offset(dyn_, 1 + ch));
     }
-  i2_lanes_.append(&i2_sig_[size_t(e) * size_t(2 * na)]);
+  i2_lanes_.append(sig.data());
 }
 
 void Encoder::cache_m(uint32_t e) {
@@ -409,8 +411,9 @@ void Encoder::cache_m(uint32_t e) {
   const ChannelView y = p2_store_.view(p2, 0);
   const double n = double(g2_.size());
   m_bright_.push_back(float(y.sum / n) - channel_offset(dyn_, 0));
-  std::vector<float> sig(p2_sig_.begin() + ptrdiff_t(p2) * na, p2_sig_.begin() + ptrdiff_t(p2 + 1) * na);
-  sig.insert(sig.end(), i2_sig_.begin() + ptrdiff_t(i2) * 2 * na, i2_sig_.begin() + ptrdiff_t(i2 + 1) * 2 * na);
+  std::vector<float> sig(static_cast<size_t>(3 * na));  // the P2 plane's row means, then the I2 plane's
+  p2_lanes_.row(p2, sig.data());
+  i2_lanes_.row(i2, sig.data() + na);
   m_sig_.append(sig.data());
   m_lookup_.emplace((uint64_t(p2) << 32) | i2, e);
 }

@@ -290,8 +290,7 @@ class Encoder {
   ProxyIndex p1_index_, i1_index_;
   bool indexed_1d() const { return settings_.pruning && settings_.candidate_limit > 0; }
   SignatureTable m_sig_, p3_sig_, p4_sig_;  // proxy signatures (offset-removed means)
-  std::vector<float> p2_sig_, i2_sig_;                 // row means
-  RowLanes p2_lanes_, i2_lanes_;                       // the same, laid out for the candidate orders' scans
+  RowLanes p2_lanes_, i2_lanes_;  // row means (offset removed) of the P2 and I2 planes, for their candidate orders
   std::vector<float> m_bright_, p3_bright_, p4_bright_;  // mean of (Y - offset)
   std::unordered_map<uint64_t, uint32_t> m_lookup_;    // (P2, I2) -> M
   ContentIndex p1_rows_, c_rows_, i1_rows_, i2_rows_, p2_rows_, p3_rows_, p4_rows_;

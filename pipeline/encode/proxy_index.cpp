@@ -26,6 +26,12 @@ void Lanes<Sum>::append(const float* x) {
   ++n_;
 }
 
+template <class Sum>
+void Lanes<Sum>::row(size_t e, float* out) const {
+  const float* block = v_.data() + (e / kLanes) * size_t(dim_) * kLanes;
+  for (int i = 0; i < dim_; ++i) out[i] = block[size_t(i) * kLanes + e % kLanes];
+}
+
 // kLanes values as one vector (GCC/Clang vector extensions: element-wise, in the same order as the
 // scalar loop, so the same numbers on any vector width, SSE2 included).
 typedef float FloatLanes __attribute__((vector_size(sizeof(float) * 8)));

@@ -33,6 +33,8 @@ class Lanes {
   explicit Lanes(int dim = 0) : dim_(dim) {}
   void append(const float* x);
   size_t size() const { return n_; }
+  // Entry e's dim values, as appended, into out.
+  void row(size_t e, float* out) const;
   size_t blocks() const { return (n_ + kLanes - 1) / kLanes; }
   // out[e] = |q - entry e|^2 for every entry; out holds blocks() x kLanes.
   void distances(const float* q, float* out) const { distances(q, out, 0, blocks()); }
