@@ -73,7 +73,7 @@ TEST_CASE("--help or -h anywhere asks for help, even among bad arguments") {
   CHECK(text.find("usage: demo IN... --out FILE") != std::string::npos);
   CHECK(text.find("--out FILE") != std::string::npos);
   CHECK(text.find("where to write") != std::string::npos);
-  CHECK(text.find("--size SIZE") != std::string::npos);  // no placeholder given: the name in capitals
+  CHECK(text.find("--size SIZE") != std::string::npos);  // no value name given: the option name in capitals
   CHECK(text.find("--fast") != std::string::npos);
   CHECK(text.find("-h, --help") != std::string::npos);
 }

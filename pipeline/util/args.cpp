@@ -29,7 +29,8 @@ std::optional<Flag> as_flag(const std::string& word) {
   return Flag{word.substr(2, eq - 2), word.substr(eq + 1)};
 }
 
-std::string placeholder(const Option& o) {
+// The value's name printed after an option in --help: the spec's, else the option's name in capitals.
+std::string value_name(const Option& o) {
   if (!o.value.empty()) return o.value;
   std::string upper = o.name;
   for (char& c : upper) c = char(std::toupper(static_cast<unsigned char>(c)));
@@ -116,7 +117,7 @@ Args parse_args(const ArgSpec& spec, const std::vector<std::string>& argv) {
 
 std::string help_text(const ArgSpec& spec) {
   std::vector<std::pair<std::string, std::string>> rows;
-  for (const auto& o : spec.values) rows.emplace_back("--" + o.name + " " + placeholder(o), o.help);
+  for (const auto& o : spec.values) rows.emplace_back("--" + o.name + " " + value_name(o), o.help);
   for (const auto& o : spec.switches) rows.emplace_back("--" + o.name, o.help);
   rows.emplace_back("-h, --help", "print this help");
   std::string out = spec.program + ": " + spec.summary + "\n\n" + usage_line(spec) + "\n\noptions:\n" + option_lines(rows);
