@@ -20,6 +20,7 @@
 //   consts   per texel: c1[3], c2[3]
 //   lum      per P2 entry: one block;  chroma per I2 entry: blocks a, b
 //   plane_*  per P4 entry: its planes' P2 entry, I2 entry and scale factor (P4 x P3 scale)
+//   nums     per (texel, slot): the candidate's least-squares numerator, sum of f (x - offset)(y - offset)
 //   entry_yy per P4 entry: its least-squares denominator, sum of f^2 (y - offset)^2 over scaled channels
 //   scratch  per texel: planes x 3 x rows x 2 x 16 floats, the current candidate's SSIM numerators
 //            and denominators by rows
@@ -48,13 +49,6 @@ float16 window_row(float16 p, int radius) {
   if (radius >= 1) h += lanes_right1(p) + lanes_left1(p);
   if (radius >= 2) h += lanes_right2(p) + lanes_left2(p);
   return h;
-}
-
-float lane_sum(float16 v) {
-  float8 a = v.lo + v.hi;
-  float4 b = a.lo + a.hi;
-  float2 c = b.lo + b.hi;
-  return c.x + c.y;
 }
 
 int count_sum(int16 v) {
@@ -110,7 +104,7 @@ void search_order_planes(__global const float16* terms, int planes, int rows, in
 }
 
 __kernel void search_texels(__global const float16* queries, __global const float* consts,
-                            __global const unsigned* candidates, int texels, int slots,
+                            __global const unsigned* candidates, __global const float* nums, int texels, int slots,
                             __global const unsigned* plane_p2, __global const unsigned* plane_i2,
                             __global const float* plane_f, __global const float* entry_yy, int planes,
                             __global const float16* lum, __global const float16* chroma,
@@ -137,21 +131,10 @@ __kernel void search_texels(__global const float16* queries, __global const floa
     __global const unsigned* p2 = plane_p2 + e;
     __global const unsigned* i2 = plane_i2 + e;
     __global const float* f = plane_f + e;
-    // The least-squares scale over the channels it acts on; values are stored offset-removed (the
-    // float sums would otherwise cancel catastrophically around the chroma offset 128) and the
-    // candidate's own sum of squares is precomputed.
-    float num = 0.0f;
-    for (int j = 0; j < planes; ++j) {
-      float16 xy = 0.0f;
-      for (int c = 0; c < 3; ++c) {
-        if (!search_scales(hdr, c)) continue;
-        __global const float16* x = query + (j * 3 + c) * block;
-        __global const float16* y = search_block(lum, chroma, p2[j], i2[j], c, block);
-        for (int r = radius; r < radius + rows; ++r) xy += x[r] * y[r];
-      }
-      num += f[j] * lane_sum(xy);
-    }
-    const float den = entry_yy[entry];
+    // The least-squares scale over the channels it acts on: the host computes its numerator
+    // (FrozenSearch::scale_numerators, all planes of every candidate, with the batch's shared
+    // code-book planes in cache) and each entry's denominator.
+    const float num = nums[(long)t * slots + k], den = entry_yy[entry];
     const float s = den > 1e-20f ? (num / den > 0.0f ? num / den : 0.0f) : 1.0f;
 
     // Each SSIM value is kept as numerator and denominator: v < floor is num < floor * den (den > 0),

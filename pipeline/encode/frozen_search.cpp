@@ -52,7 +52,7 @@ struct PaddedPlane {
 // layout (FrozenSearch::query_block; SliceStore blocks): the same order, scale, abandonment and bins.
 struct ReferenceInputs {
   const uint32_t *plane_p2, *plane_i2;
-  const float *plane_f, *lum, *chroma, *inv_count;
+  const float *plane_f, *entry_yy, *lum, *chroma, *inv_count;
   size_t lum_stride, chroma_stride;
   int rows, cols, radius, planes, hdr, keep;
 };
@@ -61,7 +61,7 @@ float search_offset(int hdr, int c) { return hdr ? 0.0f : (c == 0 ? 16.0f : 128.
 bool search_scales(int hdr, int c) { return !hdr || c == 0; }
 
 void search_reference(const ReferenceInputs& in, const float* query, const float* consts, const uint32_t* candidates,
-                      size_t slots, int* bins) {
+                      const float* nums, size_t slots, int* bins) {
   const int n = in.rows * in.cols;
   // Where the candidate's values, means and variances of plane channel c live, and their spacing.
   auto entry = [&](size_t e, int j, int c, int* spacing) {
@@ -76,22 +76,7 @@ void search_reference(const ReferenceInputs& in, const float* query, const float
   for (int j = 0; j < in.planes; ++j) order[size_t(j)] = j;
   for (size_t k = 0; k < slots; ++k) {
     const size_t e = candidates[k];
-    float num = 0.0f, den = 0.0f;
-    for (int j = 0; j < in.planes; ++j)
-      for (int c = 0; c < 3; ++c) {
-        if (!search_scales(in.hdr, c)) continue;
-        int spacing;
-        const float* x = query + size_t(j * 3 + c) * 3 * size_t(n);
-        const float* y = entry(e, j, c, &spacing);
-        const float o = search_offset(in.hdr, c), f = in.plane_f[e * size_t(in.planes) + size_t(j)];
-        float xy = 0.0f, yy = 0.0f;
-        for (int i = 0; i < n; ++i) {
-          xy += (x[i] - o) * (y[i] - o);
-          yy += (y[i] - o) * (y[i] - o);
-        }
-        num += f * xy;
-        den += f * f * yy;
-      }
+    const float num = nums[k], den = in.entry_yy[e];
     const float s = den > 1e-20f ? std::max(num / den, 0.0f) : 1.0f;
     int below = 0;
     for (int q = 0; q < in.planes && below < in.keep; ++q)
@@ -147,8 +132,8 @@ void search_reference(const ReferenceInputs& in, const float* query, const float
 struct FrozenSearch::Device {
   cl::Buffer plane_p2, plane_i2, plane_f, entry_yy, lum, chroma, inv_count;
   // Per-launch buffers, kept for the next batch: padded queries, constants, candidates, scratch, bins.
-  cl::Buffer queries, consts, candidates, scratch, bins;
-  size_t slots = 0;  // capacity of candidates and bins: kChunk x slots
+  cl::Buffer queries, consts, candidates, nums, scratch, bins;
+  size_t slots = 0;  // capacity of candidates, nums and bins: kChunk x slots
 };
 
 bool FrozenSearch::kernel_fits(const AngularGrid& g, int radius) {
@@ -175,6 +160,21 @@ FrozenSearch::FrozenSearch(const Encoder& encoder, SearchPath path, int threads)
   const WindowGeometry geometry(g.n_alpha, g.n_beta, radius);
   for (int i = 0; i < geometry.size(); ++i) inv_count_.push_back(geometry.inv_count(i));
   keep_ = int(std::floor(encoder.settings().outlier_fraction * double(3 * g.samples()) + 1e-9)) + 1;
+  const size_t n = size_t(geometry.size());
+  const int hdr = encoder.dynamic() == Dynamic::HDR;
+  // Each code-book entry channel's sum of squares about the offset: the least-squares denominators.
+  auto squares = [&](const SliceStore& store, int first, std::vector<double>& yy) {
+    const size_t channels = size_t(store.channels());
+    yy.assign(store.size() * channels, 0.0);
+    for (size_t e = 0; e < store.size(); ++e)
+      for (size_t c = 0; c < channels; ++c) {
+        const float* v = store.blocks().data() + e * store.stride() + c * n;
+        const float o = search_offset(hdr, first + int(c));
+        for (size_t i = 0; i < n; ++i) yy[e * channels + c] += double(v[i] - o) * double(v[i] - o);
+      }
+  };
+  squares(encoder.luminance_planes(), 0, lum_yy_);
+  squares(encoder.chroma_planes(), 1, chroma_yy_);
   if (path_ != SearchPath::BatchedOpenCL) {
     sync();
     return;
@@ -188,25 +188,21 @@ FrozenSearch::FrozenSearch(const Encoder& encoder, SearchPath path, int threads)
                       std::to_string(g.n_phi_v * g.n_theta_v) + " planes of " + std::to_string(g.n_alpha) + " x " +
                       std::to_string(g.n_beta));
   const PaddedPlane layout{g.n_alpha, g.n_beta, radius};
-  const size_t n = size_t(geometry.size());
-  const int hdr = encoder.dynamic() == Dynamic::HDR;
   // Code-book planes in the kernel's padded rows (one block per channel; channel c of the store is
-  // colour channel first + c), and each entry channel's sum of squares about the offset.
-  auto padded = [&](const SliceStore& store, int first, std::vector<double>& yy) {
+  // colour channel first + c).
+  auto padded = [&](const SliceStore& store, int first) {
     const size_t channels = size_t(store.channels()), entries = store.size();
     std::vector<float> out(entries * channels * layout.block());
-    yy.assign(entries * channels, 0.0);
     for (size_t e = 0; e < entries; ++e)
       for (size_t c = 0; c < channels; ++c) {
         const float* v = store.blocks().data() + e * store.stride() + c * n;
-        const float o = search_offset(hdr, first + int(c));
-        layout.pack(v, v + channels * n, v + 2 * channels * n, o, out.data() + (e * channels + c) * layout.block());
-        for (size_t i = 0; i < n; ++i) yy[e * channels + c] += double(v[i] - o) * double(v[i] - o);
+        layout.pack(v, v + channels * n, v + 2 * channels * n, search_offset(hdr, first + int(c)),
+                    out.data() + (e * channels + c) * layout.block());
       }
     return out;
   };
-  const std::vector<float> lum = padded(encoder.luminance_planes(), 0, lum_yy_);
-  const std::vector<float> chroma = padded(encoder.chroma_planes(), 1, chroma_yy_);
+  const std::vector<float> lum = padded(encoder.luminance_planes(), 0);
+  const std::vector<float> chroma = padded(encoder.chroma_planes(), 1);
   std::vector<float> inv(size_t(g.n_alpha) * kLanes, 0.0f);
   for (int r = 0; r < g.n_alpha; ++r)
     for (int c = 0; c < g.n_beta; ++c) inv[size_t(r) * kLanes + size_t(c + radius)] = inv_count_[size_t(r * g.n_beta + c)];
@@ -231,7 +227,6 @@ void FrozenSearch::sync() {
   const size_t planes = size_t(g.n_phi_v * g.n_theta_v);
   for (uint32_t e = uint32_t(entries_); e < k.p4_index.rows(); ++e) {
     encoder_.p4_planes(e, plane_p2_, plane_i2_, plane_f_);
-    if (lum_yy_.empty()) continue;  // the C++ reference fits its scales itself
     double d = 0;
     for (size_t j = 0; j < planes; ++j) {
       const size_t at = size_t(e) * planes + j;
@@ -292,18 +287,118 @@ std::vector<int> FrozenSearch::bins(const std::vector<FrozenQuery>& queries, con
   std::vector<int> out(texels * slots);
   if (out.empty()) return out;
   const auto t0 = std::chrono::steady_clock::now();
-  if (path_ == SearchPath::BatchedReference) bins_reference(queries, candidates, slots, out);
-  else bins_opencl(queries, candidates, slots, out);
+  const std::vector<float> nums = scale_numerators(queries, candidates, slots);
+  if (path_ == SearchPath::BatchedReference) bins_reference(queries, candidates, slots, nums, out);
+  else bins_opencl(queries, candidates, slots, nums, out);
   stats_.device_seconds += seconds_since(t0);
   return out;
 }
 
+// Per (texel, slot), the least-squares scale's numerator: the sum over planes j and scaled channels of
+// f_j <x_j - o, y_j - o>. Every candidate needs all planes (most are then abandoned after a few), so
+// per candidate this reads the entry's whole reconstruction, scattered over the P2 and I2 stores: in
+// the kernel, from memory, two thirds of its time (proposte 256). A batch's texels share most of
+// their candidates (256 texels x 32 slots name ~800 entries there), so here the pairs are grouped by
+// entry and walked plane by plane: an entry's plane is read once per batch and the texels' planes
+// stay in cache.
+std::vector<float> FrozenSearch::scale_numerators(const std::vector<FrozenQuery>& queries,
+                                                  const std::vector<uint32_t>& candidates, size_t slots) const {
+  const AngularGrid& g = encoder_.codebooks().grid;
+  const size_t n = size_t(g.n_alpha * g.n_beta), planes = size_t(g.n_phi_v * g.n_theta_v), samples = g.samples();
+  const int hdr = encoder_.dynamic() == Dynamic::HDR;
+  const SliceStore &lum = encoder_.luminance_planes(), &chroma = encoder_.chroma_planes();
+  const size_t texels = queries.size(), pairs = candidates.size();
+  // The pairs in entry order; each part takes whole entries, so that no two threads add to one sum.
+  std::vector<uint32_t> by_entry(pairs);
+  for (size_t i = 0; i < pairs; ++i) by_entry[i] = uint32_t(i);
+  std::stable_sort(by_entry.begin(), by_entry.end(),
+                   [&](uint32_t a, uint32_t b) { return candidates[a] < candidates[b]; });
+  const size_t parts = std::min(pairs, size_t(threads_));
+  std::vector<size_t> bounds(parts + 1, pairs);
+  for (size_t p = 0; p < parts; ++p) {
+    size_t at = pairs * p / parts;
+    while (at > 0 && at < pairs && candidates[by_entry[at]] == candidates[by_entry[at - 1]]) ++at;
+    bounds[p] = at;
+  }
+  std::vector<double> sums(pairs, 0.0);  // in by_entry's order: each thread adds to its own range
+  // A texel's plane as lum (n) and chroma a, b (2n) values, each part padded with zeros to whole
+  // kLanes where the entry's block goes on that far: the sums then read past an entry's values into
+  // its window means (finite), which add zero, and need no scalar tail.
+  auto span_of = [](size_t m, size_t stride) {
+    const size_t whole = (m + kLanes - 1) / kLanes * kLanes;
+    return whole <= stride ? whole : m;
+  };
+  const size_t lum_span = span_of(n, lum.stride()), chroma_span = span_of(2 * n, chroma.stride());
+  const size_t span = lum_span + chroma_span;
+  // Adds x (y - o) over m values to kLanes partial sums (the loop vectorizes without reassociation).
+  auto add = [](float* lane, const float* x, const float* y, float o, size_t m) {
+    size_t i = 0;
+    for (; i + kLanes <= m; i += kLanes)
+      for (size_t l = 0; l < size_t(kLanes); ++l) lane[l] += x[i + l] * (y[i + l] - o);
+    for (size_t l = 0; i < m; ++i, ++l) lane[l] += x[i] * (y[i] - o);
+  };
+  auto total = [](float* lane) {
+    for (size_t w = kLanes / 2; w > 0; w /= 2)
+      for (size_t l = 0; l < w; ++l) lane[l] += lane[l + w];
+    return lane[0];
+  };
+  // Where each entry's pairs begin in by_entry (and the end).
+  std::vector<size_t> groups;
+  for (size_t i = 0; i < pairs; ++i)
+    if (i == 0 || candidates[by_entry[i]] != candidates[by_entry[i - 1]]) groups.push_back(i);
+  groups.push_back(pairs);
+  parallel(parts, [&](size_t part) {
+    const size_t g0 = size_t(std::lower_bound(groups.begin(), groups.end(), bounds[part]) - groups.begin());
+    const size_t g1 = size_t(std::lower_bound(groups.begin(), groups.end(), bounds[part + 1]) - groups.begin());
+    std::vector<float> x(texels * span, 0.0f);  // plane j of every texel, offset removed
+    for (size_t j = 0; j < planes; ++j) {
+      for (size_t t = 0; t < texels; ++t)
+        for (size_t c = 0; c < 3; ++c) {
+          const float* v = queries[t].texel.data() + c * samples + j * n;
+          const float o = search_offset(hdr, int(c));
+          float* out = x.data() + t * span + (c == 0 ? 0 : lum_span + (c - 1) * n);
+          for (size_t i = 0; i < n; ++i) out[i] = v[i] - o;
+        }
+      auto planes_of = [&](size_t group, const float** y, const float** ab) {
+        const size_t at = size_t(candidates[by_entry[groups[group]]]) * planes + j;
+        *y = lum.blocks().data() + plane_p2_[at] * lum.stride();
+        *ab = chroma.blocks().data() + plane_i2_[at] * chroma.stride();
+        return at;
+      };
+      for (size_t group = g0; group < g1; ++group) {
+        // The entries' planes are scattered over the stores: fetch the next entry's while this one's
+        // pairs are summed.
+        if (group + 1 < g1) {
+          const float *y, *ab;
+          planes_of(group + 1, &y, &ab);
+          for (size_t b = 0; b < n * sizeof(float); b += 64) __builtin_prefetch(reinterpret_cast<const char*>(y) + b);
+          for (size_t b = 0; b < 2 * n * sizeof(float); b += 64) __builtin_prefetch(reinterpret_cast<const char*>(ab) + b);
+        }
+        const float *y, *ab;
+        const double f = plane_f_[planes_of(group, &y, &ab)];
+        for (size_t i = groups[group]; i < groups[group + 1]; ++i) {
+          const float* xt = x.data() + size_t(by_entry[i] / slots) * span;
+          float lane[kLanes] = {};
+          add(lane, xt, y, search_offset(hdr, 0), lum_span);
+          // Both chroma channels at once: they lie one after the other in the query and the entry.
+          if (search_scales(hdr, 1)) add(lane, xt + lum_span, ab, search_offset(hdr, 1), chroma_span);
+          sums[i] += f * double(total(lane));
+        }
+      }
+    }
+  });
+  std::vector<float> out(pairs);
+  for (size_t i = 0; i < pairs; ++i) out[by_entry[i]] = float(sums[i]);
+  return out;
+}
+
 void FrozenSearch::bins_reference(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates,
-                                  size_t slots, std::vector<int>& out) const {
+                                  size_t slots, const std::vector<float>& nums, std::vector<int>& out) const {
   const AngularGrid& g = encoder_.codebooks().grid;
   const ReferenceInputs in{plane_p2_.data(),
                            plane_i2_.data(),
                            plane_f_.data(),
+                           entry_yy_.data(),
                            encoder_.luminance_planes().blocks().data(),
                            encoder_.chroma_planes().blocks().data(),
                            inv_count_.data(),
@@ -319,12 +414,13 @@ void FrozenSearch::bins_reference(const std::vector<FrozenQuery>& queries, const
     const std::vector<float> block = query_block(queries[t]);
     float consts[6];
     for (int c = 0; c < 3; ++c) consts[c] = queries[t].c1[c], consts[3 + c] = queries[t].c2[c];
-    search_reference(in, block.data(), consts, candidates.data() + t * slots, slots, out.data() + t * slots);
+    search_reference(in, block.data(), consts, candidates.data() + t * slots, nums.data() + t * slots, slots,
+                     out.data() + t * slots);
   });
 }
 
 void FrozenSearch::bins_opencl(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates,
-                               size_t slots, std::vector<int>& out) const {
+                               size_t slots, const std::vector<float>& nums, std::vector<int>& out) const {
   const AngularGrid& g = encoder_.codebooks().grid;
   const int rows = g.n_alpha, cols = g.n_beta, planes = g.n_phi_v * g.n_theta_v;
   const int radius = encoder_.settings().window_radius, hdr = encoder_.dynamic() == Dynamic::HDR;
@@ -343,6 +439,7 @@ void FrozenSearch::bins_opencl(const std::vector<FrozenQuery>& queries, const st
     }
     if (d.slots < slots) {
       d.candidates = dev.allocate(kChunk * slots * sizeof(uint32_t), CL_MEM_READ_ONLY | CL_MEM_ALLOC_HOST_PTR);
+      d.nums = dev.allocate(kChunk * slots * sizeof(float), CL_MEM_READ_ONLY | CL_MEM_ALLOC_HOST_PTR);
       d.bins = dev.allocate(kChunk * slots * sizeof(int), CL_MEM_WRITE_ONLY | CL_MEM_ALLOC_HOST_PTR);
       d.slots = slots;
     }
@@ -355,6 +452,8 @@ void FrozenSearch::bins_opencl(const std::vector<FrozenQuery>& queries, const st
         Mapped<float> blocks(queue, d.queries, w, texels * stride), consts(queue, d.consts, w, texels * 6);
         Mapped<uint32_t> cand(queue, d.candidates, w, texels * slots);
         std::copy_n(candidates.data() + first * slots, texels * slots, cand.get());
+        Mapped<float> num(queue, d.nums, w, texels * slots);
+        std::copy_n(nums.data() + first * slots, texels * slots, num.get());
         parallel(texels, [&](size_t t) {
           const FrozenQuery& q = queries[first + t];
           for (size_t p = 0; p < size_t(planes); ++p)
@@ -371,6 +470,7 @@ void FrozenSearch::bins_opencl(const std::vector<FrozenQuery>& queries, const st
       kernel.setArg(a++, d.queries);
       kernel.setArg(a++, d.consts);
       kernel.setArg(a++, d.candidates);
+      kernel.setArg(a++, d.nums);
       kernel.setArg(a++, cl_int(texels));
       kernel.setArg(a++, cl_int(slots));
       kernel.setArg(a++, d.plane_p2);

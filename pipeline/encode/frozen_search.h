@@ -68,10 +68,12 @@ class FrozenSearch {
   struct Device;
   void encode_pruned(const float* texels, size_t n, P6Entry* out);
   void encode_batched(const float* texels, size_t n, P6Entry* out);
+  std::vector<float> scale_numerators(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates,
+                                      size_t slots) const;
   void bins_reference(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates, size_t slots,
-                      std::vector<int>& out) const;
+                      const std::vector<float>& nums, std::vector<int>& out) const;
   void bins_opencl(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates, size_t slots,
-                   std::vector<int>& out) const;
+                   const std::vector<float>& nums, std::vector<int>& out) const;
   std::vector<float> query_block(const FrozenQuery& q) const;
   template <class F>
   void parallel(size_t n, F&& f) const;
