@@ -33,18 +33,24 @@ struct PaddedPlane {
   }
   size_t padded() const { return size_t(rows + 2 * radius); }
   size_t block() const { return (padded() + 2 * size_t(rows)) * kLanes; }
-  // Values and means minus the channel offset (kernels/search.cl).
+  // Values and means minus the channel offset (kernels/search.cl). Every float of the block is
+  // written once, row by row: a batch packs ~750 KB per texel.
   void pack(const float* v, const float* mean, const float* var, float offset, float* out) const {
-    std::fill(out, out + block(), 0.0f);
+    auto row = [&](float* at, const float* from, float minus) {
+      std::fill(at, at + radius, 0.0f);
+      for (int c = 0; c < cols; ++c) at[radius + c] = from[c] - minus;
+      std::fill(at + radius + cols, at + kLanes, 0.0f);
+    };
+    std::fill(out, out + size_t(radius) * kLanes, 0.0f);
     float* m = out + padded() * kLanes;
+    std::fill(m - size_t(radius) * kLanes, m, 0.0f);
     float* w = m + size_t(rows) * kLanes;
-    for (int r = 0; r < rows; ++r)
-      for (int c = 0; c < cols; ++c) {
-        const size_t i = size_t(r * cols + c), lane = size_t(c + radius);
-        out[size_t(r + radius) * kLanes + lane] = v[i] - offset;
-        m[size_t(r) * kLanes + lane] = mean[i] - offset;
-        w[size_t(r) * kLanes + lane] = var[i];
-      }
+    for (int r = 0; r < rows; ++r) {
+      const size_t i = size_t(r * cols), at = size_t(r) * kLanes;
+      row(out + size_t(radius) * kLanes + at, v + i, offset);
+      row(m + at, mean + i, offset);
+      row(w + at, var + i, 0.0f);
+    }
   }
 };
 
