@@ -314,18 +314,20 @@ std::vector<float> FrozenSearch::scale_numerators(const std::vector<FrozenQuery>
   const int hdr = encoder_.dynamic() == Dynamic::HDR;
   const SliceStore &lum = encoder_.luminance_planes(), &chroma = encoder_.chroma_planes();
   const size_t texels = queries.size(), pairs = candidates.size();
-  // The pairs in entry order; each part takes whole entries, so that no two threads add to one sum.
+  // The pairs in entry order, and where each entry's pairs begin (then the end). A part takes the
+  // entries that begin in its share of the pairs, so that no two threads add to one sum.
   std::vector<uint32_t> by_entry(pairs);
   for (size_t i = 0; i < pairs; ++i) by_entry[i] = uint32_t(i);
   std::stable_sort(by_entry.begin(), by_entry.end(),
                    [&](uint32_t a, uint32_t b) { return candidates[a] < candidates[b]; });
+  std::vector<size_t> groups;
+  for (size_t i = 0; i < pairs; ++i)
+    if (i == 0 || candidates[by_entry[i]] != candidates[by_entry[i - 1]]) groups.push_back(i);
+  groups.push_back(pairs);
   const size_t parts = std::min(pairs, size_t(threads_));
-  std::vector<size_t> bounds(parts + 1, pairs);
-  for (size_t p = 0; p < parts; ++p) {
-    size_t at = pairs * p / parts;
-    while (at > 0 && at < pairs && candidates[by_entry[at]] == candidates[by_entry[at - 1]]) ++at;
-    bounds[p] = at;
-  }
+  auto first_group = [&](size_t part) {
+    return size_t(std::lower_bound(groups.begin(), groups.end(), pairs * part / parts) - groups.begin());
+  };
   std::vector<double> sums(pairs, 0.0);  // in by_entry's order: each thread adds to its own range
   // A texel's plane as lum (n) and chroma a, b (2n) values, each part padded with zeros to whole
   // kLanes where the entry's block goes on that far: the sums then read past an entry's values into
@@ -348,14 +350,8 @@ std::vector<float> FrozenSearch::scale_numerators(const std::vector<FrozenQuery>
       for (size_t l = 0; l < w; ++l) lane[l] += lane[l + w];
     return lane[0];
   };
-  // Where each entry's pairs begin in by_entry (and the end).
-  std::vector<size_t> groups;
-  for (size_t i = 0; i < pairs; ++i)
-    if (i == 0 || candidates[by_entry[i]] != candidates[by_entry[i - 1]]) groups.push_back(i);
-  groups.push_back(pairs);
   parallel(parts, [&](size_t part) {
-    const size_t g0 = size_t(std::lower_bound(groups.begin(), groups.end(), bounds[part]) - groups.begin());
-    const size_t g1 = size_t(std::lower_bound(groups.begin(), groups.end(), bounds[part + 1]) - groups.begin());
+    const size_t g0 = first_group(part), g1 = first_group(part + 1);
     std::vector<float> x(texels * span, 0.0f);  // plane j of every texel, offset removed
     for (size_t j = 0; j < planes; ++j) {
       for (size_t t = 0; t < texels; ++t)
