@@ -231,13 +231,20 @@ class SlurmPhaseThree {
     for (std::string o; extra >> o;) argv.push_back(o);
     argv.insert(argv.end(), {(dir_ / "tile.sh").string(), std::to_string(base), std::to_string(per),
                              std::to_string(w_.tiles - 1), snap.string()});
-    const Output o = run_command(argv);
-    std::string id = one_line(o.text);
-    if (const auto semi = id.find(';'); semi != std::string::npos) id.resize(semi);  // "ID;CLUSTER"
-    if (o.status != 0 || id.empty() || id.find_first_not_of("0123456789") != std::string::npos)
-      throw Error("slurm", "sbatch failed: " + one_line(o.text));
-    jobs_.insert(id);
-    return id;
+    // Like squeue, sbatch fails while slurmctld is busy or restarting: asked again a few times
+    // (about 10 s in all) before the job fails.
+    for (int attempt = 1;; ++attempt) {
+      const Output o = run_command(argv);
+      std::string id = one_line(o.text);
+      if (const auto semi = id.find(';'); semi != std::string::npos) id.resize(semi);  // "ID;CLUSTER"
+      if (o.status == 0 && !id.empty() && id.find_first_not_of("0123456789") == std::string::npos) {
+        jobs_.insert(id);
+        return id;
+      }
+      if (attempt == 5 || ctx_.cancelled()) throw Error("slurm", "sbatch failed: " + one_line(o.text));
+      spdlog::warn("job {}: sbatch failed ({}): will try again", spec_.id, one_line(o.text));
+      std::this_thread::sleep_for(std::chrono::seconds(attempt));
+    }
   }
 
   int cpus() const {

@@ -5,7 +5,6 @@
 // with the script's one line saying why.
 #include <doctest/doctest.h>
 
-#include <cstdio>
 #include <cstdlib>
 #include <set>
 
@@ -19,13 +18,8 @@ namespace {
 
 std::string shell(const std::string& cmd) {
   std::string out;
-  FILE* p = popen((cmd + " 2>&1").c_str(), "r");
-  if (!p) return "popen failed";
-  char buf[4096];
-  for (size_t n; (n = fread(buf, 1, sizeof buf, p)) > 0;) out.append(buf, n);
-  const int rc = pclose(p);
-  if (rc != 0) out = "exit " + std::to_string(rc) + ": " + out;
-  return out;
+  const int rc = run_command(cmd, &out);
+  return rc == 0 ? out : "exit " + std::to_string(rc) + ": " + out;
 }
 
 std::vector<std::string> lines(const std::string& text) {
@@ -52,6 +46,26 @@ struct Cluster {
   }
   ~Cluster() { shell(script + " stop " + dir.string()); }
   std::string squeue(const std::string& args = "") { return shell("squeue --noheader --array " + args + " --format='%i %j %T'"); }
+  // What a failure message needs: the node's state and reason, the queue, the daemons' last words.
+  std::string report() {
+    return "sinfo: " + shell("sinfo -N --noheader -o '%N %T %E'") + "squeue: " + squeue() + "slurmctld.log:\n" +
+           shell("tail -n 25 " + (dir / "log/slurmctld.log").string()) + "slurmd.log:\n" +
+           shell("tail -n 25 " + (dir / "log/slurmd.log").string());
+  }
+  // Waits for the job's final state; anything but `state` by the deadline fails with the report, so
+  // a stuck or failed job shows why instead of running into ctest's timeout.
+  json wait_final(server::Service& service, const std::string& id, const std::string& state, double seconds) {
+    const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+    for (;;) {
+      json j = service.job(id);
+      const bool final = j["state"] == "succeeded" || j["state"] == "failed" || j["state"] == "cancelled";
+      if (final || std::chrono::steady_clock::now() > until) {
+        if (j["state"] != state) FAIL("job " << id << " is " << j["state"] << " (waited for " << state << "): " << j.dump() << "\n" << report());
+        return j;
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+  }
 };
 
 json two_materials(const std::string& database) {
@@ -94,7 +108,7 @@ TEST_CASE("Slurm executor: a two-material job publishes the local bytes, a cance
     if (meanwhile) meanwhile(id);
     Run r;
     r.id = id;
-    r.job = wait_state(service, id, "succeeded", 900);
+    r.job = cluster.wait_final(service, id, "succeeded", name == "local" ? 120 : 240);  // ~10 s and ~45 s here
     r.sha256 = service.content("catalogue", std::nullopt).sha256;
     MESSAGE(name << ": " << std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count() << " s, sha256 " << r.sha256);
     service.stop();
@@ -106,11 +120,18 @@ TEST_CASE("Slurm executor: a two-material job publishes the local bytes, a cance
   // Through Slurm; the first element seen running is cancelled (scancel JOBID_IDX).
   std::string cancelled_element;
   std::set<std::string> seen;  // "JOBID_IDX" of every element squeue listed
-  std::atomic<bool> done{false};
-  std::thread watcher;
+  struct Watcher {  // joined also when a failed check unwinds the test
+    std::atomic<bool> done{false};
+    std::thread thread;
+    void stop() {
+      done = true;
+      if (thread.joinable()) thread.join();
+    }
+    ~Watcher() { stop(); }
+  } watcher;
   const Run slurm = run("slurm", server::make_slurm_executor(slurm_settings(root)), [&](const std::string& id) {
-    watcher = std::thread([&, id] {
-      while (!done) {
+    watcher.thread = std::thread([&, id] {
+      while (!watcher.done) {
         for (const std::string& l : lines(cluster.squeue("--name=btfvq-" + id + "-0"))) {
           std::istringstream in(l);
           std::string element, name, state;
@@ -125,8 +146,7 @@ TEST_CASE("Slurm executor: a two-material job publishes the local bytes, a cance
       }
     });
   });
-  done = true;
-  watcher.join();
+  watcher.stop();
   CHECK(slurm.sha256 == local.sha256);
   REQUIRE(!cancelled_element.empty());
   // The cancelled element ran again under another Slurm job id, with the same array index.
@@ -147,14 +167,15 @@ TEST_CASE("Slurm executor: a two-material job publishes the local bytes, a cance
     server::Service service(config, server::make_slurm_executor(slurm_settings(root)));
     service.start();
     const std::string id = service.submit(two_materials("cancelled"))["id"];
-    const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(600);
+    const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(60);
     while (lines(cluster.squeue("--name=btfvq-" + id + "-0")).empty()) {
-      REQUIRE(std::chrono::steady_clock::now() < until);
-      REQUIRE(service.job(id)["state"] != "succeeded");
+      const json job = service.job(id);
+      if (std::chrono::steady_clock::now() > until || (job["state"] != "queued" && job["state"] != "running"))
+        FAIL("no Slurm element of job " << id << " listed: " << job.dump() << "\n" << cluster.report());
       std::this_thread::sleep_for(std::chrono::milliseconds(20));
     }
     service.cancel(id);
-    wait_state(service, id, "cancelled", 120);
+    cluster.wait_final(service, id, "cancelled", 60);
     CHECK(cluster.squeue() == "");
     CHECK(!fs::exists(root / "shared" / ("job-" + id)));
     service.stop();
