@@ -197,14 +197,17 @@ inline json wait_final(server::Service& s, const std::string& id, double seconds
   }
 }
 
+// A job in a final state stays there: waiting on would only turn its error into a timeout.
+inline bool final_state(const json& job) {
+  return job["state"] == "succeeded" || job["state"] == "failed" || job["state"] == "cancelled";
+}
+
 inline json wait_state(server::Service& s, const std::string& id, const std::string& state, double seconds = 20) {
   const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
   for (;;) {
     json j = s.job(id);
     if (j["state"] == state) return j;
-    // A final state is final: waiting on would only turn the job's error into a timeout.
-    const bool final = j["state"] == "succeeded" || j["state"] == "failed" || j["state"] == "cancelled";
-    if (final || std::chrono::steady_clock::now() > until) FAIL("job " << id << " never reached " << state << ": " << j.dump());
+    if (final_state(j) || std::chrono::steady_clock::now() > until) FAIL("job " << id << " never reached " << state << ": " << j.dump());
     std::this_thread::sleep_for(std::chrono::milliseconds(2));
   }
 }

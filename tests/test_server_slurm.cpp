@@ -58,8 +58,7 @@ struct Cluster {
     const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
     for (;;) {
       json j = service.job(id);
-      const bool final = j["state"] == "succeeded" || j["state"] == "failed" || j["state"] == "cancelled";
-      if (final || std::chrono::steady_clock::now() > until) {
+      if (final_state(j) || std::chrono::steady_clock::now() > until) {
         if (j["state"] != state) FAIL("job " << id << " is " << j["state"] << " (waited for " << state << "): " << j.dump() << "\n" << report());
         return j;
       }
@@ -170,7 +169,7 @@ TEST_CASE("Slurm executor: a two-material job publishes the local bytes, a cance
     const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(60);
     while (lines(cluster.squeue("--name=btfvq-" + id + "-0")).empty()) {
       const json job = service.job(id);
-      if (std::chrono::steady_clock::now() > until || (job["state"] != "queued" && job["state"] != "running"))
+      if (std::chrono::steady_clock::now() > until || final_state(job))
         FAIL("no Slurm element of job " << id << " listed: " << job.dump() << "\n" << cluster.report());
       std::this_thread::sleep_for(std::chrono::milliseconds(20));
     }
