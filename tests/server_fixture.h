@@ -12,6 +12,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <filesystem>
+#include <functional>
 #include <fstream>
 #include <map>
 #include <memory>
@@ -202,13 +203,20 @@ inline bool final_state(const json& job) {
   return job["state"] == "succeeded" || job["state"] == "failed" || job["state"] == "cancelled";
 }
 
-inline json wait_state(server::Service& s, const std::string& id, const std::string& state, double seconds = 20) {
-  const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+// Polls until the job is in `state`; another final state or the deadline fails with the job's JSON
+// and what `explain` adds (the Slurm test: the cluster's own view).
+inline json wait_state(server::Service& s, const std::string& id, const std::string& state, double seconds = 20,
+                       const std::function<std::string()>& explain = {}) {
+  const auto start = std::chrono::steady_clock::now();
+  const auto until = start + std::chrono::duration<double>(seconds);
   for (;;) {
     json j = s.job(id);
     if (j["state"] == state) return j;
-    if (final_state(j) || std::chrono::steady_clock::now() > until) FAIL("job " << id << " never reached " << state << ": " << j.dump());
-    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+    const auto now = std::chrono::steady_clock::now();
+    if (final_state(j) || now > until)
+      FAIL("job " << id << " never reached " << state << ": " << j.dump() << (explain ? "\n" + explain() : ""));
+    // Quick jobs are seen at once; a long one (a Slurm run) need not be asked 500 times a second.
+    std::this_thread::sleep_for(std::chrono::milliseconds(now - start < std::chrono::seconds(1) ? 2 : 20));
   }
 }
 

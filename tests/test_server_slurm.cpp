@@ -52,18 +52,10 @@ struct Cluster {
            shell("tail -n 25 " + (dir / "log/slurmctld.log").string()) + "slurmd.log:\n" +
            shell("tail -n 25 " + (dir / "log/slurmd.log").string());
   }
-  // Waits for the job's final state; anything but `state` by the deadline fails with the report, so
-  // a stuck or failed job shows why instead of running into ctest's timeout.
+  // The job's final state within `seconds`; anything else fails with the cluster's report, so a
+  // stuck or failed job says why instead of running into ctest's timeout.
   json wait_final(server::Service& service, const std::string& id, const std::string& state, double seconds) {
-    const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
-    for (;;) {
-      json j = service.job(id);
-      if (final_state(j) || std::chrono::steady_clock::now() > until) {
-        if (j["state"] != state) FAIL("job " << id << " is " << j["state"] << " (waited for " << state << "): " << j.dump() << "\n" << report());
-        return j;
-      }
-      std::this_thread::sleep_for(std::chrono::milliseconds(20));
-    }
+    return wait_state(service, id, state, seconds, [this] { return report(); });
   }
 };
 
