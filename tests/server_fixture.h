@@ -188,36 +188,30 @@ inline json synthetic_job(const std::string& db, const std::string& preset, int 
   return {{"database", db}, {"materials", json::array({m})}};
 }
 
-inline json wait_final(server::Service& s, const std::string& id, double seconds = 20) {
-  const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
-  for (;;) {
-    json j = s.job(id);
-    if (server::is_final(j["state"].get<server::JobState>())) return j;
-    if (std::chrono::steady_clock::now() > until) FAIL("job " << id << " did not finish: " << j.dump());
-    std::this_thread::sleep_for(std::chrono::milliseconds(5));
-  }
-}
-
 // A job in a final state stays there: waiting on would only turn its error into a timeout.
-inline bool final_state(const json& job) {
-  return job["state"] == "succeeded" || job["state"] == "failed" || job["state"] == "cancelled";
-}
+inline bool final_state(const json& job) { return server::is_final(job["state"].get<server::JobState>()); }
 
-// Polls until the job is in `state`; another final state or the deadline fails with the job's JSON
-// and what `explain` adds (the Slurm test: the cluster's own view).
+// Polls until the job is in `state` (empty: any final state); another final state or the deadline
+// fails with the job's JSON and what `explain` adds (the Slurm test: the cluster's own view).
 inline json wait_state(server::Service& s, const std::string& id, const std::string& state, double seconds = 20,
                        const std::function<std::string()>& explain = {}) {
   const auto start = std::chrono::steady_clock::now();
   const auto until = start + std::chrono::duration<double>(seconds);
   for (;;) {
     json j = s.job(id);
-    if (j["state"] == state) return j;
+    const bool final = final_state(j);
+    if (state.empty() ? final : j["state"] == state) return j;
     const auto now = std::chrono::steady_clock::now();
-    if (final_state(j) || now > until)
-      FAIL("job " << id << " never reached " << state << ": " << j.dump() << (explain ? "\n" + explain() : ""));
+    if (final || now > until)
+      FAIL("job " << id << " never reached " << (state.empty() ? "a final state" : state) << ": " << j.dump()
+                  << (explain ? "\n" + explain() : ""));
     // Quick jobs are seen at once; a long one (a Slurm run) need not be asked 500 times a second.
     std::this_thread::sleep_for(std::chrono::milliseconds(now - start < std::chrono::seconds(1) ? 2 : 20));
   }
+}
+
+inline json wait_final(server::Service& s, const std::string& id, double seconds = 20) {
+  return wait_state(s, id, "", seconds);
 }
 
 // Every file under `dir` (relative path -> size), to assert that a rejection changed nothing.
