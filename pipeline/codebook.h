@@ -155,8 +155,9 @@ struct ReclaimReport {
 
 // Removes the rows not yet published (past the last VersionMark) that no material's P6 reaches
 // through the code-book chain -- the children of compositions the encoder tried and rejected, entries
-// that later ones made redundant -- and renumbers the rest in their order, rewriting the indices of
-// unpublished rows and of every material. Published rows are never touched (append-only: old
+// that later ones made redundant -- and renumbers the rest, rewriting the indices of unpublished rows
+// and of every material: the lower code-books' rows keep their order, P4's follow the order in which
+// the materials' P6 first reach them. Published rows are never touched (append-only: old
 // versions stay byte-identical). `reachable` counts every reachable row, published or not.
 ReclaimReport reclaim_unreachable(Database& db);
 

@@ -63,7 +63,9 @@ void append_garbage(Codebooks& k) {
 TEST_CASE("a compressed material's code-books hold only rows its P6 reaches") {
   Database db;
   const CompressReport r = compress_material(db, synth("leather", 1), "leather", {});
+  const Database reclaimed = db;
   const ReclaimReport again = reclaim_unreachable(db);
+  CHECK(db == reclaimed);  // nothing to remove and P4 already in first-use order
   for (CodebookId id : kAllCodebooks) {
     CHECK(again.removed[id] == 0);
     CHECK(again.reachable[id] == CodebookSizes::of(db.codebooks)[id]);
@@ -105,6 +107,14 @@ TEST_CASE("unreachable unpublished rows are removed; decoding and published rows
   CHECK(prefix(db.codebooks.p3_index, published.p3_index));
   CHECK(prefix(db.codebooks.p4_index, published.p4_index));
   CHECK(prefix(db.codebooks.p4_scale, published.p4_scale));
+  // Unpublished P4 rows are numbered in the order the materials' P6 first reach them.
+  uint32_t next = uint32_t(published.p4_index.rows());
+  size_t out_of_order = 0;
+  for (const Material& mat : db.materials)
+    for (int32_t e : mat.p6_index)
+      if (e >= int32_t(next)) out_of_order += e != int32_t(next++);
+  CHECK(next == after[CodebookId::P4]);
+  CHECK(out_of_order == 0);
   // And the file still writes and reads back to the same values.
   const Database back = parse_database(serialize_database(db), "memory");
   quantize_new_rows(db);
