@@ -1,5 +1,6 @@
 #include <doctest/doctest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -398,6 +399,57 @@ TEST_CASE("scalar quantization error on the real alu database ranges") {
   CHECK(linear > 0.0105);
   CHECK(linear < 0.0110);
   CHECK(logarithmic < 0.0038);
+}
+
+TEST_CASE("P4 scales keep only the codes their relative error needs, in an ordinary 8-bit field") {
+  // P4 scales of a normalized entry span a ratio of about 1.5; dense values over 0.8 .. 1.2.
+  std::vector<float> v;
+  for (int i = 0; i <= 20000; ++i) v.push_back(0.8f + 0.4f * float(i) / 20000.0f);
+  const ValueCoding log8{ValueCoding::Log, 8};
+  const Quantizer q = Quantizer::fit(v.data(), v.size(), log8, "test");
+  // One code is ln(1.5) / 254 = 0.16 % apart; codes at most 9 apart keep 0.72 % < 0.75 % (10: 0.80 %),
+  // and 254 / 9 = 28.2 gaps take 30 levels.
+  CHECK(q.levels_for(0.0075) == 30);
+  CHECK(q.levels_for(0) == 0);
+  CHECK(q.levels_for(1e-5) == 0);  // more levels than 8 bits have: every code
+  auto a = v;
+  quantize_values(a.data(), a.size(), log8, "test", 0.0075);
+  std::vector<float> distinct = a;
+  std::sort(distinct.begin(), distinct.end());
+  distinct.erase(std::unique(distinct.begin(), distinct.end()), distinct.end());
+  CHECK(distinct.size() == 30);
+  CHECK(distinct.front() == v.front());  // the ends stay, so a refit gives the same quantizer
+  CHECK(distinct.back() == v.back());
+  double worst = 0;
+  for (size_t i = 0; i < v.size(); ++i) worst = std::max(worst, std::abs(double(a[i]) - v[i]) / double(v[i]));
+  MESSAGE("30 of 255 codes: max relative error " << worst);
+  CHECK(worst <= 0.0075 * 1.01);
+  CHECK(worst > 0.0060);
+  // What a reader decodes: the plain 8-bit quantizer maps every such value to itself, and snapping
+  // again changes nothing.
+  auto b = a, c = a;
+  quantize_values(b.data(), b.size(), log8, "test");
+  quantize_values(c.data(), c.size(), log8, "test", 0.0075);
+  CHECK(b == a);
+  CHECK(c == a);
+}
+
+TEST_CASE("the default P4 scale error makes the file smaller and stays within its bound") {
+  std::mt19937 rng(3);
+  Database db = make_database(rng, AngularGrid{}, Counts{200, 5, 20, 6, 300, 320, 120, 400}, 1, 16, 12);
+  for (float& s : db.codebooks.p4_scale.data()) s = uniform(rng, 0.8f, 1.2f);
+  PackSettings every_code;
+  every_code.p4_scale_error = 0;
+  const auto coarse = serialize_database(db), fine = serialize_database(db, every_code);
+  const double error = PackSettings{}.p4_scale_error;
+  REQUIRE(error > 0);
+  MESSAGE("P4 scales within " << error << ": " << coarse.size() << " bytes, every code: " << fine.size());
+  CHECK(coarse.size() < fine.size());
+  const Database back = parse_database(coarse, "memory");
+  const auto& was = db.codebooks.p4_scale.data();
+  const auto& now = back.codebooks.p4_scale.data();
+  REQUIRE(was.size() == now.size());
+  for (size_t i = 0; i < was.size(); ++i) CHECK(std::abs(double(now[i]) - was[i]) <= error * 1.01 * double(was[i]));
 }
 
 namespace {

@@ -391,6 +391,7 @@ PackSettings PackSettings::lossless() {
   PackSettings s;
   const ValueCoding raw{ValueCoding::Float32, 32};
   s.p1_values = s.c_values = s.p2_scale = s.p2_scale_hdr = s.p3_scale = s.p4_scale = s.p6_scale = raw;
+  s.p4_scale_error = 0;
   return s;
 }
 
@@ -402,7 +403,8 @@ void quantize_new_rows(Database& db, const PackSettings& settings) {
     for (const Field& f : fields_of(db.codebooks, id))
       if (f.values) {
         const size_t r1 = f.values->rows(), r0 = std::min(prev.rows[id], r1);
-        quantize_values(f.values->row(r0), (r1 - r0) * f.values->cols(), codings.*f.coding, section_name(id, 0));
+        quantize_values(f.values->row(r0), (r1 - r0) * f.values->cols(), codings.*f.coding, section_name(id, 0),
+                        id == CodebookId::P4 ? settings.p4_scale_error : 0.0);
       }
   for (size_t i = std::min(prev.materials, now.materials); i < now.materials; ++i) {
     Material& m = db.materials[i];

@@ -237,10 +237,31 @@ std::vector<float> read_values(ByteReader& r, size_t n, const std::string& what)
   return out;
 }
 
-void quantize_values(float* v, size_t n, ValueCoding requested, const std::string& what) {
+uint32_t Quantizer::levels_for(double relative_error) const {
+  if (coding.mode != ValueCoding::Log || !(relative_error > 0) || !(max > min)) return 0;
+  // The used codes are whole codes, so neighbours lie up to ceil(span / (used - 1)) codes apart.
+  const double span = double(levels() - 1), step = std::log(double(max) / double(min)) / span;
+  for (double used = std::max(2.0, std::ceil(span * step / (2 * relative_error)) + 1); used < double(levels()); ++used)
+    if (std::ceil(span / (used - 1)) * step / 2 <= relative_error) return uint32_t(used);
+  return 0;
+}
+
+uint32_t Quantizer::coarse_code(float v, uint32_t used) const {
+  if (v <= 0) return 0;
+  const double span = double(levels() - 1), per = span / double(used - 1);
+  auto code_of = [&](int64_t j) { return 1 + uint32_t(std::llround(double(j) * per)); };
+  const int64_t near = std::llround(double(code(v) - 1) / per);
+  uint32_t best = 0;
+  for (int64_t j = std::max<int64_t>(0, near - 1); j <= std::min<int64_t>(int64_t(used) - 1, near + 1); ++j)
+    if (const uint32_t c = code_of(j); best == 0 || std::abs(value(c) - v) < std::abs(value(best) - v)) best = c;
+  return best;
+}
+
+void quantize_values(float* v, size_t n, ValueCoding requested, const std::string& what, double relative_error) {
   const Quantizer q = Quantizer::fit(v, n, requested, what);
   if (q.coding.mode == ValueCoding::Float32) return;
-  for (size_t i = 0; i < n; ++i) v[i] = q.value(q.code(v[i]));
+  const uint32_t used = q.levels_for(relative_error);
+  for (size_t i = 0; i < n; ++i) v[i] = q.value(used ? q.coarse_code(v[i], used) : q.code(v[i]));
 }
 
 }  // namespace btfvq

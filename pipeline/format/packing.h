@@ -81,13 +81,21 @@ struct Quantizer {
   // The code whose value is nearest to v (ties to the lower value), and among codes with that same
   // value the smallest: so quantizing already quantized values reproduces the same codes.
   uint32_t code(float v) const;
+  // How many evenly spread Log codes (1 and levels() among them) keep every positive value within
+  // `relative_error` of itself (ln(max/min) / (2 (used - 1)) <= relative_error); 0 when that takes
+  // every code, for Linear, and for relative_error 0.
+  uint32_t levels_for(double relative_error) const;
+  // The code nearest to v among `used` such codes (ties to the lower value); 0 for v <= 0.
+  uint32_t coarse_code(float v, uint32_t used) const;
 };
 
 // Value field: u8 mode, u8 bits, f32 min, f32 max, then n codes packed LSB-first in `bits` bits
 // (Float32: n raw little-endian IEEE floats).
 void write_values(ByteWriter& w, const float* v, size_t n, ValueCoding requested, const std::string& what);
 std::vector<float> read_values(ByteReader& r, size_t n, const std::string& what);
-// Replaces the values by what write_values() + read_values() would give back.
-void quantize_values(float* v, size_t n, ValueCoding requested, const std::string& what);
+// Replaces the values by what write_values() + read_values() would give back. With relative_error
+// > 0 (Log only), the values snap to the fewer codes of Quantizer::levels_for(relative_error): still
+// codes of `requested`, so a reader sees an ordinary field, but the entropy coder sees fewer values.
+void quantize_values(float* v, size_t n, ValueCoding requested, const std::string& what, double relative_error = 0);
 
 }  // namespace btfvq
