@@ -81,6 +81,7 @@ TEST_CASE("the settings structs carry no values of their own: defaults() is the 
   CHECK(Thresholds::defaults(Metric::MSE).p4 == j["thresholds"]["mse"]["p4"].get<double>());
   const SimilaritySettings s = SimilaritySettings::defaults();
   CHECK(s.candidate_limit == j["similarity"]["candidate_limit"].get<int>());
+  CHECK(s.proxy_bands == j["similarity"]["proxy_bands"].get<int>());
   CHECK(s.outlier_fraction == j["similarity"]["outlier_fraction"].get<double>());
   CHECK(ScheduleSettings::defaults().phase2_fraction == j["schedule"]["phase2_fraction"].get<double>());
   CHECK(ResampleSettings::defaults().light_neighbours == j["resample"]["light_neighbours"].get<int>());

@@ -241,7 +241,8 @@ Encoder::Encoder(Codebooks& books, Dynamic dyn, const Thresholds& thresholds, co
   p2_lanes_ = RowLanes(grid_.n_alpha);
   i2_lanes_ = RowLanes(2 * grid_.n_alpha);
   m_sig_ = SignatureTable(3 * grid_.n_alpha);
-  p3_sig_ = SignatureTable(3 * grid_.n_theta_v);
+  bands_ = std::clamp(settings.proxy_bands, 1, grid_.n_alpha);
+  p3_sig_ = SignatureTable((bands_ + 2) * grid_.n_theta_v);
   p4_sig_ = SignatureTable(3 * grid_.n_theta_v * grid_.n_phi_v);
   Database{books_, {}}.validate();
   sync();
@@ -418,7 +419,22 @@ void Encoder::cache_m(uint32_t e) {
   m_lookup_.emplace((uint64_t(p2) << 32) | i2, e);
 }
 
-// Proxy signature of composite entries: per plane, the offset-removed mean of each channel.
+namespace {
+
+// The means of `bands` consecutive bands of n row means, times f: a coarse luminance profile.
+void append_bands(const float* rows, int n, int bands, float f, std::vector<float>& out) {
+  for (int b = 0; b < bands; ++b) {
+    const int first = b * n / bands, last = (b + 1) * n / bands;
+    double sum = 0;
+    for (int r = first; r < last; ++r) sum += rows[r];
+    out.push_back(float(f * (sum / (last - first))));
+  }
+}
+
+}  // namespace
+
+// Proxy signatures of composite entries. P3: per plane, the offset-removed luminance mean of each of
+// bands_ alpha bands and the chroma means; P4: per plane, the channel means (p3_mean_).
 void Encoder::cache_p3(uint32_t e) {
   p3_rows_.ids[table_row_hash(books_.p3_index, e, &books_.p3_scale)].push_back(e);
   const int nt = grid_.n_theta_v, na = grid_.n_alpha;
@@ -430,10 +446,10 @@ void Encoder::cache_p3(uint32_t e) {
     bright += s * m_bright_[m];
     const float* ms = m_sig_.row(m);
     for (int c = 0; c < 3; ++c) {
-      double mean = 0;
-      for (int a = 0; a < na; ++a) mean += ms[c * na + a];
-      mean /= na;
-      sig.push_back(float(channel_scales(dyn_, c) ? s * mean : mean));
+      const float f = channel_scales(dyn_, c) ? s : 1.0f;
+      append_bands(ms + c * na, na, 1, f, p3_mean_);
+      if (c == 0) append_bands(ms, na, bands_, f, sig);
+      else sig.push_back(p3_mean_.back());
     }
   }
   p3_sig_.append(sig.data());
@@ -449,7 +465,7 @@ void Encoder::cache_p4(uint32_t e) {
     const uint32_t p3 = books_.p4_index.at(e, size_t(p));
     const float s = books_.p4_scale.at(e, size_t(p));
     bright += s * p3_bright_[p3];
-    const float* ps = p3_sig_.row(p3);
+    const float* ps = p3_mean_.data() + size_t(p3) * 3 * size_t(nt);
     for (int i = 0; i < 3 * nt; ++i) sig.push_back(channel_scales(dyn_, i % 3) ? s * ps[i] : ps[i]);
   }
   p4_sig_.append(sig.data());
@@ -638,18 +654,31 @@ static void run_search(const std::vector<uint32_t>& order, bool pruning, double 
   if (best_index >= 0 && best_score < threshold_score) best_index = -1;
 }
 
-// A query's proxy signature, as its candidates' (level 4/3: per plane channel means; M: per
-// channel row means), offset-removed.
+// A query's proxy signature, as its candidates' (level 4: per plane channel means; 3: the same with
+// the luminance in bands_ alpha bands; M: per channel row means), offset-removed.
 void Encoder::proxy_signature(const Query& q, int level, std::vector<float>& out) const {
   out.clear();
   const int na = grid_.n_alpha, nb = grid_.n_beta;
+  auto row_means = [&](const ChannelView& x, int c, float* rows) {
+    for (int a = 0; a < na; ++a) rows[a] = float(x.row_sum(a, nb) / nb) - channel_offset(dyn_, c);
+  };
+  std::vector<float> rows(static_cast<size_t>(na));
   if (level == 2) {
-    for (int c = 0; c < 3; ++c)
-      for (int a = 0; a < na; ++a) out.push_back(float(q.at(0, c).row_sum(a, nb) / nb) - channel_offset(dyn_, c));
-  } else {
-    for (int p = 0; p < q.planes; ++p)
-      for (int c = 0; c < 3; ++c) out.push_back(float(q.at(p, c).sum / g2_.size()) - channel_offset(dyn_, c));
+    for (int c = 0; c < 3; ++c) {
+      row_means(q.at(0, c), c, rows.data());
+      out.insert(out.end(), rows.begin(), rows.end());
+    }
+    return;
   }
+  for (int p = 0; p < q.planes; ++p)
+    for (int c = 0; c < 3; ++c) {
+      if (level == 3 && c == 0) {
+        row_means(q.at(p, c), c, rows.data());
+        append_bands(rows.data(), na, bands_, 1.0f, out);
+      } else {
+        out.push_back(float(q.at(p, c).sum / g2_.size()) - channel_offset(dyn_, c));
+      }
+    }
 }
 
 const SignatureTable& Encoder::signatures(int level) const { return level == 4 ? p4_sig_ : level == 3 ? p3_sig_ : m_sig_; }

@@ -290,6 +290,8 @@ class Encoder {
   ProxyIndex p1_index_, i1_index_;
   bool indexed_1d() const { return settings_.pruning && settings_.candidate_limit > 0; }
   SignatureTable m_sig_, p3_sig_, p4_sig_;  // proxy signatures (offset-removed means)
+  int bands_ = 1;                 // P3 signatures: luminance means per plane over this many alpha bands
+  std::vector<float> p3_mean_;    // per P3 entry and plane, the channel means P4 signatures are made of
   RowLanes p2_lanes_, i2_lanes_;  // row means (offset removed) of the P2 and I2 planes, for their candidate orders
   std::vector<float> m_bright_, p3_bright_, p4_bright_;  // mean of (Y - offset)
   std::unordered_map<uint64_t, uint32_t> m_lookup_;    // (P2, I2) -> M

@@ -26,6 +26,7 @@ SimilaritySettings SimilaritySettings::from(const ParameterDictionary& d) {
   s.pruning = d.boolean("similarity.pruning");
   s.proxy_candidates = d.integer("similarity.proxy_candidates", 0, 1 << 20);
   s.candidate_limit = d.integer("similarity.candidate_limit", 0, 1 << 20);
+  s.proxy_bands = d.integer("similarity.proxy_bands", 1, 64);
   return s;
 }
 
