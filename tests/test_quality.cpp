@@ -115,9 +115,10 @@ TEST_CASE("--quality is monotone end to end: tile, leather and fabric at 64 x 64
   }
 }
 
-TEST_CASE("the P3 proxy's luminance bands: leather at 64 x 64 comes out smaller than with one band, MSSIM no lower") {
-  // Per-plane means cannot tell P3 entries whose light falls on different sides of a plane apart, so
-  // with one band the searches' 32 proxy-nearest candidates often miss the SSIM-best entry.
+TEST_CASE("the proxies' luminance bands: leather at 64 x 64 comes out smaller than with one band, MSSIM no lower") {
+  // Per-plane means (P3) and row means (M) cannot tell entries whose light falls on different sides
+  // of a plane apart, so with one band the searches' 32 proxy-nearest candidates often miss the
+  // SSIM-best entry.
   SynthOptions o;
   o.preset = "leather";
   o.size = 64;

@@ -240,8 +240,8 @@ Encoder::Encoder(Codebooks& books, Dynamic dyn, const Thresholds& thresholds, co
   i2_store_ = SliceStore(2, &g2_);
   p2_lanes_ = RowLanes(grid_.n_alpha);
   i2_lanes_ = RowLanes(2 * grid_.n_alpha);
-  m_sig_ = SignatureTable(3 * grid_.n_alpha);
   bands_ = std::clamp(settings.proxy_bands, 1, grid_.n_alpha);
+  m_sig_ = SignatureTable(3 * grid_.n_alpha + m_bands());
   p3_sig_ = SignatureTable((bands_ + 2) * grid_.n_theta_v);
   p4_sig_ = SignatureTable(3 * grid_.n_theta_v * grid_.n_phi_v);
   Database{books_, {}}.validate();
@@ -406,19 +406,6 @@ void Encoder::cache_i2(uint32_t e) {
   i2_lanes_.append(sig.data());
 }
 
-void Encoder::cache_m(uint32_t e) {
-  const uint32_t p2 = books_.m.at(e, 0), i2 = books_.m.at(e, 1);
-  const int na = grid_.n_alpha;
-  const ChannelView y = p2_store_.view(p2, 0);
-  const double n = double(g2_.size());
-  m_bright_.push_back(float(y.sum / n) - channel_offset(dyn_, 0));
-  std::vector<float> sig(static_cast<size_t>(3 * na));  // the P2 plane's row means, then the I2 plane's
-  p2_lanes_.row(p2, sig.data());
-  i2_lanes_.row(i2, sig.data() + na);
-  m_sig_.append(sig.data());
-  m_lookup_.emplace((uint64_t(p2) << 32) | i2, e);
-}
-
 namespace {
 
 // The means of `bands` consecutive bands of n row means, times f: a coarse luminance profile.
@@ -431,7 +418,33 @@ void append_bands(const float* rows, int n, int bands, float f, std::vector<floa
   }
 }
 
+// A plane's (rows x cols, row-major) luminance as `bands` bands of its column means, offset-removed.
+void append_column_bands(const float* v, int rows, int cols, int bands, float offset, std::vector<float>& out) {
+  std::vector<float> means(static_cast<size_t>(cols));
+  for (int c = 0; c < cols; ++c) {
+    double sum = 0;
+    for (int r = 0; r < rows; ++r) sum += v[r * cols + c];
+    means[size_t(c)] = float(sum / rows) - offset;
+  }
+  append_bands(means.data(), cols, bands, 1.0f, out);
+}
+
 }  // namespace
+
+void Encoder::cache_m(uint32_t e) {
+  const uint32_t p2 = books_.m.at(e, 0), i2 = books_.m.at(e, 1);
+  const int na = grid_.n_alpha;
+  const ChannelView y = p2_store_.view(p2, 0);
+  const double n = double(g2_.size());
+  m_bright_.push_back(float(y.sum / n) - channel_offset(dyn_, 0));
+  std::vector<float> sig(static_cast<size_t>(3 * na));  // the P2 plane's row means, then the I2 plane's
+  p2_lanes_.row(p2, sig.data());
+  i2_lanes_.row(i2, sig.data() + na);
+  if (m_bands() > 0) append_column_bands(y.v, na, grid_.n_beta, m_bands(), channel_offset(dyn_, 0), sig);
+  m_sig_.append(sig.data());
+  m_lookup_.emplace((uint64_t(p2) << 32) | i2, e);
+}
+
 
 // Proxy signatures of composite entries. P3: per plane, the offset-removed luminance mean of each of
 // bands_ alpha bands and the chroma means; P4: per plane, the channel means (p3_mean_).
@@ -655,7 +668,8 @@ static void run_search(const std::vector<uint32_t>& order, bool pruning, double 
 }
 
 // A query's proxy signature, as its candidates' (level 4: per plane channel means; 3: the same with
-// the luminance in bands_ alpha bands; M: per channel row means), offset-removed.
+// the luminance in bands_ alpha bands; M: per channel row means and the luminance in m_bands()
+// beta bands), offset-removed.
 void Encoder::proxy_signature(const Query& q, int level, std::vector<float>& out) const {
   out.clear();
   const int na = grid_.n_alpha, nb = grid_.n_beta;
@@ -668,6 +682,7 @@ void Encoder::proxy_signature(const Query& q, int level, std::vector<float>& out
       row_means(q.at(0, c), c, rows.data());
       out.insert(out.end(), rows.begin(), rows.end());
     }
+    if (m_bands() > 0) append_column_bands(q.at(0, 0).v, na, nb, m_bands(), channel_offset(dyn_, 0), out);
     return;
   }
   for (int p = 0; p < q.planes; ++p)

@@ -291,6 +291,8 @@ class Encoder {
   bool indexed_1d() const { return settings_.pruning && settings_.candidate_limit > 0; }
   SignatureTable m_sig_, p3_sig_, p4_sig_;  // proxy signatures (offset-removed means)
   int bands_ = 1;                 // P3 signatures: luminance means per plane over this many alpha bands
+  // M signatures: beyond the row means, the luminance over this many beta bands (0 with one band).
+  int m_bands() const { return bands_ > 1 ? std::min(bands_, grid_.n_beta) : 0; }
   std::vector<float> p3_mean_;    // per P3 entry and plane, the channel means P4 signatures are made of
   RowLanes p2_lanes_, i2_lanes_;  // row means (offset removed) of the P2 and I2 planes, for their candidate orders
   std::vector<float> m_bright_, p3_bright_, p4_bright_;  // mean of (Y - offset)
