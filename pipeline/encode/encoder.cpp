@@ -445,7 +445,6 @@ void Encoder::cache_m(uint32_t e) {
   m_lookup_.emplace((uint64_t(p2) << 32) | i2, e);
 }
 
-
 // Proxy signatures of composite entries. P3: per plane, the offset-removed luminance mean of each of
 // bands_ alpha bands and the chroma means; P4: per plane, the channel means (p3_mean_).
 void Encoder::cache_p3(uint32_t e) {

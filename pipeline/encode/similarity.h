@@ -36,7 +36,7 @@ struct SimilaritySettings {
   bool pruning = false;         // abandon candidates early; false = exhaustive (for tests)
   int proxy_candidates = 0;     // candidates tried first, in order of a cheap proxy distance
   int candidate_limit = 0;      // > 0: evaluate only this many best-by-proxy candidates (approximate)
-  int proxy_bands = 0;          // P3 proxy: luminance means per plane over this many alpha bands
+  int proxy_bands = 0;          // P3 / M proxies: luminance means over this many alpha / beta bands
 
   // Reads the "similarity" section; unknown keys are reported by the dictionary's check_unused().
   static SimilaritySettings from(const ParameterDictionary& d);
