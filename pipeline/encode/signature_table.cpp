@@ -52,6 +52,23 @@ double distance_bound(double qq, double c, double r) {
 // round the double ones (relative 2^-24) and these lose up to a few ulp of qq to cancellation.
 bool beyond(double bound, double qq, float kth) { return bound * (1 - 1e-6) - 1e-12 * qq > double(kth); }
 
+// qy[a][j] = q . entry j of block a, for A blocks from `base`. Each lane's sum is one chain of
+// dependent additions in value order (which fixes its value); the chains of A blocks interleave to
+// keep the FMA units busy.
+template <size_t A>
+void products(const float* q, size_t width, const float* base, double (*qy)[SignatureTable::kLanes]) {
+  constexpr size_t kLanes = SignatureTable::kLanes;
+  double acc[A][kLanes] = {};
+  for (size_t i = 0; i < width; ++i) {
+    const double qi = q[i];
+    for (size_t a = 0; a < A; ++a) {
+      const float* y = base + (a * width + i) * kLanes;
+      for (size_t j = 0; j < kLanes; ++j) acc[a][j] += qi * double(y[j]);
+    }
+  }
+  for (size_t a = 0; a < A; ++a) std::copy(acc[a], acc[a] + kLanes, qy[a]);
+}
+
 }  // namespace
 
 float scaled_distance(const float* q, const float* y, int n) {
@@ -72,33 +89,43 @@ void SignatureTable::Blocks::append(const float* sig, size_t width, double sq, u
 void SignatureTable::Blocks::select(const float* q, size_t width, double qq, size_t k, size_t first,
                                    std::vector<Neighbour>& heap) const {
   const size_t n = ids.size();
-  for (size_t b = 0; b * kLanes < n; ++b) {
-    const float* block = v.data() + b * width * kLanes;
-    double qy[kLanes] = {};
-    for (size_t i = 0; i < width; ++i) {
-      const double qi = q[i];
-      const float* y = block + i * kLanes;
-      for (size_t j = 0; j < kLanes; ++j) qy[j] += qi * double(y[j]);
+  const size_t blocks = (n + kLanes - 1) / kLanes;
+  constexpr size_t kAhead = 4;  // blocks whose products are summed together
+  double qy[kAhead][kLanes];
+  for (size_t b0 = 0; b0 < blocks; b0 += kAhead) {
+    const size_t ahead = std::min(kAhead, blocks - b0);
+    const float* base = v.data() + b0 * width * kLanes;
+    switch (ahead) {
+      case 4: products<4>(q, width, base, qy); break;
+      case 3: products<3>(q, width, base, qy); break;
+      case 2: products<2>(q, width, base, qy); break;
+      default: products<1>(q, width, base, qy); break;
     }
-    // Once k are kept, an entry can only enter with a distance up to the k-th (equal: with a lower
-    // index, and the groups do not come in index order), qq - qy^2 / yy <= t; below t < float(qq)
-    // that needs qy > 0 (else the distance is exactly float(qq)). A test without the division, with
-    // a margin far above the rounding of the float distances, so it passes every entry that can
-    // enter; those then get the exact distance.
-    const size_t lanes = std::min(kLanes, n - b * kLanes);
-    unsigned pass = (1u << lanes) - 1;
-    if (heap.size() == k && heap.front().d < float(qq)) {
-      const double t = heap.front().d;
-      const double limit = qq - t - (1e-6 * std::abs(t) + 1e-12 * qq);
-      pass = 0;
-      for (size_t j = 0; j < lanes; ++j)
-        pass |= unsigned(qy[j] > 0 && qy[j] * qy[j] > limit * yy[b * kLanes + j]) << j;
-    }
-    for (; pass; pass &= pass - 1) {
-      const size_t e = b * kLanes + size_t(__builtin_ctz(pass));
-      if (ids[e] < first) continue;
-      keep_smallest(heap, k, Neighbour{float(distance_from(qq, qy[e - b * kLanes], yy[e])), ids[e]});
-    }
+    for (size_t a = 0; a < ahead; ++a) offer(b0 + a, qy[a], qq, k, first, heap);
+  }
+}
+
+void SignatureTable::Blocks::offer(size_t b, const double* qy, double qq, size_t k, size_t first,
+                                  std::vector<Neighbour>& heap) const {
+  // Once k are kept, an entry can only enter with a distance up to the k-th (equal: with a lower
+  // index, and the groups do not come in index order), qq - qy^2 / yy <= t; below t < float(qq)
+  // that needs qy > 0 (else the distance is exactly float(qq)). A test without the division, with
+  // a margin far above the rounding of the float distances, so it passes every entry that can
+  // enter; those then get the exact distance.
+  const size_t lanes = std::min(kLanes, ids.size() - b * kLanes);
+  unsigned pass = (1u << lanes) - 1;
+  if (heap.size() == k && heap.front().d < float(qq)) {
+    const double t = heap.front().d;
+    const double limit = qq - t - (1e-6 * std::abs(t) + 1e-12 * qq);
+    pass = 0;
+    for (size_t j = 0; j < lanes; ++j)
+      pass |= unsigned(qy[j] > 0 && qy[j] * qy[j] > limit * yy[b * kLanes + j]) << j;
+  }
+  for (; pass; pass &= pass - 1) {
+    const size_t j = size_t(__builtin_ctz(pass));
+    const size_t e = b * kLanes + j;
+    if (ids[e] < first) continue;
+    keep_smallest(heap, k, Neighbour{float(distance_from(qq, qy[j], yy[e])), ids[e]});
   }
 }
 

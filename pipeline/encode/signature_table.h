@@ -65,6 +65,8 @@ class SignatureTable {
     void append(const float* sig, size_t width, double yy, uint32_t id);
     // Offers every entry of id >= first to the max-heap of the k nearest (a Neighbour heap).
     void select(const float* q, size_t width, double qq, size_t k, size_t first, std::vector<Neighbour>& heap) const;
+    // The same for the entries of block b, given their products qy with the query.
+    void offer(size_t b, const double* qy, double qq, size_t k, size_t first, std::vector<Neighbour>& heap) const;
   };
   struct Group {
     std::vector<double> leader;  // unit vector
