@@ -103,6 +103,9 @@ void print_summary(const std::string& out, const DatabaseSummary& s) {
       if (t.contains("ceiling") && t["aimed"] != t[metric])
         std::cout << " (above the parametrization's ceiling " << t["ceiling"].get<double>() << ": aimed at "
                   << t["aimed"].get<double>() << ")";
+      if (t.contains("finer_grid"))
+        std::cout << " on the finer grid of " << t["finer_grid"]["n_phi_v"] << " view azimuths (the configured grid's ceiling "
+                  << t["finer_grid"]["configured_ceiling"].get<double>() << ")";
       std::cout << " at quality " << t["quality"].get<double>()
                 << ", ratio 1:" << t["ratio"].get<double>() << ", after " << t["attempts"].size() << " compression(s)\n";
     }

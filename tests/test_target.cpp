@@ -64,10 +64,13 @@ TEST_CASE("target MSSIM above the parametrization's ceiling: aims at the ceiling
   QualityTarget t;
   t.value = 0.999;
   t.max_attempts = 3;
+  t.overrides = {{"grid", {{"n_phi_v", 16}}}};  // a grid the user names stays
   Database db;
   const CompressReport r = compress_to_target(db, sample, "m", t, {});
   const auto& j = r.json["target"];
   CHECK_FALSE(j["reached"].get<bool>());
+  CHECK_FALSE(j.contains("finer_grid"));
+  CHECK(db.codebooks.grid.n_phi_v == 16);
   CHECK(j["ceiling"].get<double>() == doctest::Approx(ceiling).epsilon(1e-12));
   CHECK(j["aimed"].get<double>() == doctest::Approx(ceiling - kCeilingMargin).epsilon(1e-12));
   CHECK(independent_mssim(db, sample) == doctest::Approx(j["achieved"].get<double>()).epsilon(1e-9));
@@ -86,6 +89,47 @@ TEST_CASE("target MSSIM above the parametrization's ceiling: aims at the ceiling
   } else {
     CHECK(j["achieved"].get<double>() == best);
   }
+}
+
+TEST_CASE("target MSSIM above the shipped grid's ceiling: a new database takes the finer grid, one with content keeps its own") {
+  const MeasuredSample sample = leather16();
+  auto ceiling_on = [&](int n_phi_v) {
+    const nlohmann::json grid = {{"grid", {{"n_phi_v", n_phi_v}}}};
+    return evaluate(sample, parametrization_roundtrip(sample, pipeline_config(grid, "test"))).mssim_y;
+  };
+  const double shipped = ceiling_on(16), finer = ceiling_on(24);
+  REQUIRE(finer > shipped);
+  QualityTarget t;
+  t.value = std::min(0.995, finer - kCeilingMargin);  // reachable on the finer grid only
+  REQUIRE(t.value > shipped - kCeilingMargin);
+  t.max_attempts = 2;
+  Database db;
+  const CompressReport r = compress_to_target(db, sample, "m", t, {});
+  const auto& j = r.json["target"];
+  CHECK(j["ceiling"].get<double>() == doctest::Approx(finer).epsilon(1e-12));
+  CHECK(j["finer_grid"]["n_phi_v"] == 24);
+  CHECK(j["finer_grid"]["configured_ceiling"].get<double>() == doctest::Approx(shipped).epsilon(1e-12));
+  CHECK(j["aimed"].get<double>() == t.value);
+  // The first attempt on the shipped grid, then up to max_attempts on the finer one, going up from
+  // it; the kept one, closer to the target, is on the finer grid, and so is the database.
+  const auto& attempts = j["attempts"];
+  REQUIRE(attempts.size() >= 2);
+  CHECK(attempts.size() <= size_t(t.max_attempts) + 1);
+  CHECK(attempts[0]["n_phi_v"] == 16);
+  CHECK(attempts[1]["quality"].get<double>() > attempts[0]["quality"].get<double>());
+  for (size_t k = 1; k < attempts.size(); ++k) CHECK(attempts[k]["n_phi_v"] == 24);
+  CHECK(db.codebooks.grid.n_phi_v == 24);
+  CHECK(independent_mssim(db, sample) == doctest::Approx(j["achieved"].get<double>()).epsilon(1e-9));
+  CHECK(j["achieved"].get<double>() > attempts[0]["mssim"].get<double>());
+
+  // A second material into that database keeps its grid, without the user naming it.
+  QualityTarget second;
+  second.value = 0.5;
+  second.max_attempts = 1;
+  const CompressReport r2 = compress_to_target(db, sample, "n", second, {});
+  CHECK(db.codebooks.grid.n_phi_v == 24);
+  CHECK(db.materials.size() == 2);
+  CHECK(r2.json["target"]["attempts"][0]["n_phi_v"] == 24);
 }
 
 TEST_CASE("target MSSIM: a target the first attempt reaches measures no ceiling; a bad target changes nothing") {

@@ -46,10 +46,6 @@ PipelineSettings read_settings(const ParameterDictionary& config) {
   return s;
 }
 
-bool has_content(const Database& db) {
-  return !db.materials.empty() || db.codebooks.p1.rows() > 0 || db.codebooks.p4_index.rows() > 0;
-}
-
 // Rough share of the total work per stage, for one progress fraction (phase 1 grows code-books
 // texel by texel and costs far more per texel than the frozen search of phase 3).
 constexpr double kStageStart[4] = {0.0, 0.02, 0.35, 0.55};

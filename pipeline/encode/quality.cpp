@@ -16,17 +16,14 @@ namespace {
 // power law (docs/encoder.md "Quality"), so equal steps of Q are about equal ratios of size.
 double threshold_factor(double q) { return std::pow(3.0, (kDefaultQuality - q) / 50.0); }
 
-// Above this quality the share of texels that grow the code-books rises too (docs/encoder.md
+// Above kGrowthQuality the share of texels that grow the code-books rises too (docs/encoder.md
 // "Quality"). Phase 3 composes P4 entries only from frozen P3 entries, so a material whose texels
 // share little (wool) gains quality only by growing more of them: wool 64 gives MSSIM 0.50 with
 // the shipped 6 % grown, 0.60 with 25 %, 0.81 (its ceiling 0.836) with every texel. On a material
 // that shares (leather) growth buys MSSIM at far more bytes and time than the thresholds do:
 // leather 128 reached 0.90 at 1:361 with thresholds alone but at 1:163 when the grown share rose
-// from Q 50 on. So the thresholds carry the scale up to here, and growth the last steps to Q 100,
-// where every texel grows.
-constexpr double kGrowthQuality = 90;
-
-// 0 at and below kGrowthQuality, 1 at Q = 100.
+// from Q 50 on. So the thresholds carry the scale up to kGrowthQuality, and growth the last steps
+// to Q 100, where every texel grows. growth(): 0 at and below kGrowthQuality, 1 at Q = 100.
 double growth(double q) { return std::max(0.0, (q - kGrowthQuality) / (100.0 - kGrowthQuality)); }
 
 }  // namespace

@@ -9,6 +9,9 @@
 namespace btfvq {
 
 inline constexpr double kDefaultQuality = 50;
+// Above this quality the share of texels that grow the code-books rises too, up to every texel at
+// Q = 100: the qualities whose compressions cost the most (quality.cpp says why).
+inline constexpr double kGrowthQuality = 90;
 
 // The pipeline settings (a configs/pipeline.json fragment: thresholds.ssim, schedule.phase*_fraction,
 // schedule.relax_factor, schedule.compose_*, refine.merge_budget)

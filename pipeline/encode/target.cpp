@@ -48,7 +48,17 @@ MetricSpec metric_of(const QualityTarget& t) {
 struct Attempt {
   double quality = 0, goodness = 0;  // goodness = direction * the metric's value
   uint64_t bytes = 0;
+  int n_phi_v = 0;  // the grid's azimuths
 };
+
+// The azimuths of the finer grid a new database may take when the configured grid's ceiling holds
+// an MSSIM target down: the measured views lie on rings of up to 24 azimuths, which 16 phi_v nodes
+// undersample (docs/encoder.md "Target": wool 128's ceiling 0.838 on 16, 0.971 on 24).
+constexpr int kFinerPhiV = 24;
+
+nlohmann::json grid_json(const AngularGrid& g) {
+  return {{"n_beta", g.n_beta}, {"n_alpha", g.n_alpha}, {"n_theta_v", g.n_theta_v}, {"n_phi_v", g.n_phi_v}};
+}
 
 // Whether `a` is better kept than `b`: reaching the target beats not; among those that reach it
 // fewer bytes, among those that do not the closer one.
@@ -70,9 +80,12 @@ double next_quality(const std::vector<Attempt>& tried, double target, double fir
   }
   if (below && above) {
     const double dm = above->goodness - below->goodness;
-    const double t = dm > 1e-9 ? (target - below->goodness) / dm : 0.5;
-    // Aim a little past the interpolated point: reaching the target is what counts.
-    return std::clamp(below->quality + std::clamp(t * 1.1, 0.1, 0.9) * (above->quality - below->quality), 0.0, 100.0);
+    // Aim a little past the interpolated point: reaching the target is what counts. Where that
+    // falls near either end the curve is far from straight between them (a cliff, as wool's above
+    // Q 90): halve the bracket instead.
+    double t = dm > 1e-9 ? (target - below->goodness) / dm * 1.1 : 0.5;
+    if (t < 0.1 || t > 0.9) t = 0.5;
+    return std::clamp(below->quality + t * (above->quality - below->quality), 0.0, 100.0);
   }
   const Attempt& last = tried.back();
   double slope = first_slope;
@@ -82,7 +95,11 @@ double next_quality(const std::vector<Attempt>& tried, double target, double fir
       slope = std::max(first_slope / 20, (last.goodness - prev.goodness) / (last.quality - prev.quality));
   }
   const double step = std::clamp((target - last.goodness) / slope * 1.1, -40.0, 40.0);
-  return std::clamp(last.quality + (std::abs(step) < 2 ? (step < 0 ? -2.0 : 2.0) : step), 0.0, 100.0);
+  const double next = std::clamp(last.quality + (std::abs(step) < 2 ? (step < 0 ? -2.0 : 2.0) : step), 0.0, 100.0);
+  // Into the growth range at most halfway from below: its compressions cost the more the higher
+  // they go (Q 100 grows every texel), and there the metric can rise steeply (wool).
+  if (last.quality <= kGrowthQuality && next > kGrowthQuality) return std::min(next, (kGrowthQuality + 100) / 2);
+  return next;
 }
 
 }  // namespace
@@ -91,10 +108,16 @@ CompressReport compress_to_target(Database& db, const MeasuredSample& sample, co
                                   const QualityTarget& target, const CompressOptions& options) {
   const MetricSpec metric = metric_of(target);
   const double goal = metric.direction * target.value;
+  // A database with content keeps its grid; an empty one may take the finer grid below, unless the
+  // user's settings name a grid.
+  nlohmann::json overrides = target.overrides.is_null() ? nlohmann::json::object() : target.overrides;
+  const bool grid_named = overrides.is_object() && overrides.contains("grid");
+  if (has_content(db) && !grid_named) overrides["grid"] = grid_json(db.codebooks.grid);
+  const bool grid_free = !has_content(db) && !grid_named;
   // What the search aims at: the target, or a little under the parametrization's ceiling where
   // the target lies above what any quality can give (measured once the first attempt misses).
   double aim = goal;
-  std::optional<double> ceiling;
+  std::optional<double> ceiling, first_ceiling;
   std::vector<Attempt> tried;
   // Only the kept attempt's database and report are held: a copy of the code-books each.
   Attempt best;
@@ -104,21 +127,40 @@ CompressReport compress_to_target(Database& db, const MeasuredSample& sample, co
   for (int k = 0; k < std::max(1, target.max_attempts); ++k) {
     Database trial = db;
     CompressOptions o = options;
-    o.config = pipeline_config(with_quality(q, target.overrides), "target quality " + std::to_string(q));
-    const double share = 1.0 / std::max(1, target.max_attempts);
+    o.config = pipeline_config(with_quality(q, overrides), "target quality " + std::to_string(q));
+    // Progress over every compression the search may run (one more where the grid may change).
+    const double share = 1.0 / (std::max(1, target.max_attempts) + (grid_free ? 1 : 0));
     if (options.progress)
-      o.progress = [&, k](CompressProgress p) {
-        p.fraction = std::min(1.0, (k + p.fraction) * share);
+      o.progress = [&, done = tried.size()](CompressProgress p) {
+        p.fraction = std::min(1.0, (double(done) + p.fraction) * share);
         options.progress(p);
       };
     CompressReport report = compress_material(trial, sample, name, o);
     quantize_new_rows(trial);  // score what the file will hold
     const double value = metric.score(sample, reconstruct_sample(trial, name, sample));
-    const Attempt a{q, metric.direction * value, serialize_database(trial).size()};
+    const Attempt a{q, metric.direction * value, serialize_database(trial).size(), trial.codebooks.grid.n_phi_v};
     tried.push_back(a);
-    if (k == 0 && a.goodness < goal && target.metric == TargetMetric::Mssim && !sample.is_hdr()) {
+    int n_phi_v = a.n_phi_v;  // the grid of the next attempt
+    if (k == 0 && !ceiling && a.goodness < goal && target.metric == TargetMetric::Mssim && !sample.is_hdr()) {
       ceiling = metric.score(sample, parametrization_roundtrip(sample, o.config));
       aim = std::min(goal, metric.direction * *ceiling - kCeilingMargin);
+      // Held down by the grid: a new database takes the finer one if its ceiling is higher, and the
+      // search goes on there with one attempt more (the one above stays a candidate, and guides the
+      // next step: the finer grid scores about as high at the same quality, or higher).
+      if (aim < goal && grid_free && trial.codebooks.grid.n_phi_v < kFinerPhiV) {
+        nlohmann::json finer = overrides;
+        finer["grid"]["n_phi_v"] = kFinerPhiV;
+        const double c = metric.score(
+            sample, parametrization_roundtrip(sample, pipeline_config(with_quality(q, finer), "the finer grid")));
+        if (c > *ceiling) {
+          first_ceiling = ceiling;
+          ceiling = c;
+          aim = std::min(goal, metric.direction * c - kCeilingMargin);
+          overrides = std::move(finer);
+          n_phi_v = kFinerPhiV;
+          --k;
+        }
+      }
     }
     if (tried.size() == 1 || better(a, best, aim)) {
       best = a;
@@ -130,13 +172,16 @@ CompressReport compress_to_target(Database& db, const MeasuredSample& sample, co
     if (a.goodness >= aim && q <= 0) break;
     const double next = next_quality(tried, aim, metric.slope);
     bool seen = false;
-    for (const Attempt& t : tried) seen = seen || std::abs(t.quality - next) < 0.5;
+    for (const Attempt& t : tried) seen = seen || (t.n_phi_v == n_phi_v && std::abs(t.quality - next) < 0.5);
     if (seen) break;
     q = next;
   }
   nlohmann::json attempts = nlohmann::json::array();
   for (const Attempt& a : tried)
-    attempts.push_back({{"quality", a.quality}, {metric.name, metric.direction * a.goodness}, {"bytes", a.bytes}});
+    attempts.push_back({{"quality", a.quality},
+                        {metric.name, metric.direction * a.goodness},
+                        {"bytes", a.bytes},
+                        {"n_phi_v", a.n_phi_v}});
   nlohmann::json& j = best_report.json["target"];
   j = {{"metric", metric.name},
        {metric.name, target.value},
@@ -148,6 +193,7 @@ CompressReport compress_to_target(Database& db, const MeasuredSample& sample, co
        {"ratio", compression_ratio(raw_bytes(best_db), best.bytes)},
        {"attempts", attempts}};
   if (ceiling) j["ceiling"] = *ceiling;
+  if (first_ceiling) j["finer_grid"] = {{"n_phi_v", kFinerPhiV}, {"configured_ceiling", *first_ceiling}};
   if (target.metric == TargetMetric::BtfCielab) {
     j["resolution"] = target.condition.resolution;
     j["speed"] = target.condition.speed;

@@ -41,6 +41,7 @@ struct Field {
   CodebookId target = CodebookId::P1;
   Table<float>* values = nullptr;
   ValueCoding VersionMark::*coding = nullptr;
+  double PackSettings::*error = nullptr;  // the values' allowed relative error, if any (quantize_values)
 };
 
 std::vector<Field> fields_of(Codebooks& k, CodebookId id) {
@@ -55,7 +56,8 @@ std::vector<Field> fields_of(Codebooks& k, CodebookId id) {
     case CodebookId::P3:
       return {{&k.p3_index, -1, CodebookId::M}, {nullptr, -1, {}, &k.p3_scale, &VersionMark::p3_scale}};
     case CodebookId::P4:
-      return {{&k.p4_index, -1, CodebookId::P3}, {nullptr, -1, {}, &k.p4_scale, &VersionMark::p4_scale}};
+      return {{&k.p4_index, -1, CodebookId::P3},
+              {nullptr, -1, {}, &k.p4_scale, &VersionMark::p4_scale, &PackSettings::p4_scale_error}};
   }
   return {};
 }
@@ -387,6 +389,10 @@ std::vector<uint8_t> read_database_file(const std::string& path) {
 
 }  // namespace
 
+bool has_content(const Database& db) {
+  return !db.materials.empty() || db.codebooks.p1.rows() > 0 || db.codebooks.p4_index.rows() > 0;
+}
+
 PackSettings PackSettings::lossless() {
   PackSettings s;
   const ValueCoding raw{ValueCoding::Float32, 32};
@@ -404,7 +410,7 @@ void quantize_new_rows(Database& db, const PackSettings& settings) {
       if (f.values) {
         const size_t r1 = f.values->rows(), r0 = std::min(prev.rows[id], r1);
         quantize_values(f.values->row(r0), (r1 - r0) * f.values->cols(), codings.*f.coding, section_name(id, 0),
-                        id == CodebookId::P4 ? settings.p4_scale_error : 0.0);
+                        f.error ? settings.*f.error : 0.0);
       }
   for (size_t i = std::min(prev.materials, now.materials); i < now.materials; ++i) {
     Material& m = db.materials[i];

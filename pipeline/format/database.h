@@ -99,6 +99,10 @@ struct DatabaseInfo {
   uint64_t codebook_bytes[kCodebookCount] = {};  // their bytes in the file (all versions)
 };
 
+// Whether the database holds a material or a code-book row: an empty one takes the angular grid of
+// its first compression, one with content keeps its own.
+bool has_content(const Database& db);
+
 // Rounds every float not yet published (rows past the last VersionMark, materials past its count)
 // to exactly the value the next written file will store, so that the in-memory model and the
 // re-read file decode bit-identically. Idempotent.
