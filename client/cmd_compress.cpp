@@ -152,9 +152,15 @@ int run_compress(const Args& a) {
   }
   StageBars bars;
   std::atomic<bool> said{false};
+  std::mutex said_attempt;  // progress comes from worker threads
+  std::string attempt;      // the last one said
   options.progress = [&](const CompressProgress& p) {
     if (p.resumed_tile >= 0 && !said.exchange(true)) {
       std::cerr << "\nresuming " << p.material << " from its checkpoint: " << p.resumed_tile << " phase-3 tile(s) done\n";
+    }
+    if (!p.attempt.empty()) {
+      std::lock_guard lock(said_attempt);
+      if (p.attempt != attempt) std::cerr << "\n" << p.material << ": target search, " << (attempt = p.attempt) << "\n";
     }
     bars(p);
   };

@@ -54,6 +54,7 @@ struct JobProgress {
   CodebookSizes codebook_sizes;
   std::string material;       // the material being compressed
   int64_t resumed_tile = -1;  // >= 0: the material continued from a checkpoint after this many phase-3 tiles
+  std::string attempt;        // a target's search: which compression runs (CompressProgress::attempt)
 };
 
 // One material that the job added, as recorded in the catalogue (ratios are computed from these).

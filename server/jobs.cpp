@@ -142,6 +142,8 @@ json JobQueue::job_json(const JobRecord& job) {
           {"codebook_sizes", progress.value("codebook_sizes", json(CodebookSizes{}))},
           // Set when a re-queued job continued from its checkpoints: the phase-3 tiles it kept.
           {"resumed_from_tile", progress.value("resumed_from_tile", json(nullptr))},
+          // A target's search: which compression runs (null otherwise).
+          {"attempt", progress.value("attempt", json(nullptr))},
           {"created", job.created},
           {"started", job.started > 0 ? json(job.started) : json()},
           {"finished", job.finished > 0 ? json(job.finished) : json()},
@@ -318,6 +320,7 @@ void JobQueue::on_progress(const std::string& id, const JobProgress& p) {
                    {"codebook_sizes", p.codebook_sizes},
                    {"material", p.material},
                    {"resumed_from_tile", p.resumed_tile >= 0 ? json(p.resumed_tile) : json(nullptr)}};
+  if (!p.attempt.empty()) live.progress["attempt"] = p.attempt;
   if (stage_changed || now - live.last_persisted > 1.0) {
     store_.set_job_progress(id, live.progress);
     live.last_persisted = now;

@@ -89,7 +89,7 @@ Executor make_pipeline_executor(RemotePhaseThree remote) {
     const double compress_share = spec.btf_cielab ? 1 - kBtfCielabShare : 1;
     options.progress = [&](const CompressProgress& p) {
       ctx.progress({p.stage, p.phase, compress_share * p.fraction, p.texels_done, p.texels_total, p.sizes, p.material,
-                    p.resumed_tile});
+                    p.resumed_tile, p.attempt});
     };
     const DatabaseSummary summary = compress_database(previous, inputs, out, options);
     for (const CompressReport& r : summary.added) ctx.added.push_back({r.material, r.raw_bytes, r.width, r.height, r.json});

@@ -82,6 +82,33 @@ TEST_CASE("a job with btf_cielab: its result carries what btfvq eval computes fo
   CHECK(close(got["rms"].get<double>(), eval["rms"].get<double>()));
 }
 
+TEST_CASE("a job with a target: its events name each compression of the search, its result the target's report") {
+  const fs::path dir = scratch_dir("server-target");
+  ServerProcess server(dir / "data", free_loopback_port());
+  // A target the default quality passes: the search goes down for fewer bytes.
+  const std::string id =
+      btfvq_ok(dir, "submit --server " + server.url() + " --db t --synthetic leather:16 --name m --target-mssim 0.3");
+  const std::vector<json> events = follow(server.url(), id);
+  REQUIRE(events.back()["state"] == "succeeded");
+  std::vector<std::string> attempts;  // as the events say them, in order
+  for (const json& e : events)
+    if (e.contains("attempt") && e["attempt"].is_string() && (attempts.empty() || attempts.back() != e["attempt"]))
+      attempts.push_back(e["attempt"]);
+  const json job = get_json(server.url(), "/v1/jobs/" + id);
+  REQUIRE(job["results"].size() == 1);
+  const json& target = job["results"][0]["report"]["target"];
+  CHECK(target["mssim"] == 0.3);
+  CHECK(target["reached"] == true);
+  REQUIRE(attempts.size() == target["attempts"].size());
+  CHECK(attempts[0] == "attempt 1: quality 50");
+  for (size_t k = 1; k < attempts.size(); ++k) {
+    const json& before = target["attempts"][k - 1];
+    CHECK(attempts[k].rfind("attempt " + std::to_string(k + 1) + ": quality ", 0) == 0);
+    CHECK(attempts[k].find("attempt " + std::to_string(k) + " gave MSSIM ") != std::string::npos);
+    CHECK(attempts[k].find(" at " + std::to_string(before["bytes"].get<uint64_t>()) + " bytes") != std::string::npos);
+  }
+}
+
 TEST_CASE("a job without btf_cielab has no such key; bad values are a 400 naming the field") {
   const fs::path dir = scratch_dir("server-btf-cielab-plain");
   ServerProcess server(dir / "data", free_loopback_port());

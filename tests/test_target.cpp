@@ -2,6 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <mutex>
+#include <string>
+#include <vector>
 
 #include <btfvq/error.h>
 #include "pipeline/decode/reconstruct.h"
@@ -41,10 +44,23 @@ TEST_CASE("target MSSIM: the database keeps an attempt that reaches it, and says
   t.value = std::min(0.99, at_default + 0.02);
   CompressOptions o;
   o.target = t;
+  // The progress names each compression of the search, and what the one before gave.
+  std::mutex m;
+  std::vector<std::string> said;
+  o.progress = [&](const CompressProgress& p) {
+    std::lock_guard lock(m);
+    if (said.empty() || said.back() != p.attempt) said.push_back(p.attempt);
+  };
   Database db;
   const CompressReport r = compress_to_target(db, sample, "m", t, o);
   const auto& j = r.json["target"];
   REQUIRE(j["reached"].get<bool>());
+  REQUIRE(said.size() == j["attempts"].size());
+  CHECK(said[0] == "attempt 1: quality 50");
+  for (size_t k = 1; k < said.size(); ++k) {
+    CHECK(said[k].rfind("attempt " + std::to_string(k + 1) + ": quality ", 0) == 0);
+    CHECK(said[k].find("; attempt " + std::to_string(k) + " gave MSSIM ") != std::string::npos);
+  }
   CHECK(j["mssim"] == t.value);
   CHECK(j["achieved"].get<double>() >= t.value);
   CHECK(j["quality"].get<double>() > 50);

@@ -32,6 +32,9 @@ struct CompressProgress {
   std::string material;     // compress_database: the input being worked on ("" while writing)
   size_t material_index = 0, materials = 0;
   int64_t resumed_tile = -1;  // this material continues from a checkpoint after this many phase-3 tiles
+  // Target mode: which compression of the search runs, at which setting, and what the one before
+  // gave ("attempt 2: quality 90 on 24 view azimuths; attempt 1 gave MSSIM 0.5225 at 49,067 B").
+  std::string attempt;
 };
 
 // Target mode (pipeline/encode/target.h): the quality knob searched until a metric of the whole

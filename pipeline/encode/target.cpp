@@ -4,6 +4,7 @@
 #include <cmath>
 #include <functional>
 #include <optional>
+#include <sstream>
 #include <string>
 
 #include <btfvq/error.h>
@@ -58,6 +59,21 @@ constexpr int kFinerPhiV = 24;
 
 nlohmann::json grid_json(const AngularGrid& g) {
   return {{"n_beta", g.n_beta}, {"n_alpha", g.n_alpha}, {"n_theta_v", g.n_theta_v}, {"n_phi_v", g.n_phi_v}};
+}
+
+// What the progress says of the compression about to run at quality q (CompressProgress::attempt).
+std::string describe_attempt(const std::vector<Attempt>& tried, double q, const nlohmann::json& overrides,
+                             const MetricSpec& metric) {
+  std::ostringstream s;
+  s << "attempt " << tried.size() + 1 << ": quality " << std::round(q * 100) / 100;
+  if (overrides.contains("grid") && overrides["grid"].contains("n_phi_v"))
+    s << " on " << overrides["grid"]["n_phi_v"].get<int>() << " view azimuths";
+  if (!tried.empty()) {
+    const Attempt& last = tried.back();
+    s << "; attempt " << tried.size() << " gave " << (metric.direction > 0 ? "MSSIM " : "BTF-CIELab mean ")
+      << metric.direction * last.goodness << " at " << last.bytes << " bytes";
+  }
+  return s.str();
 }
 
 // Whether `a` is better kept than `b`: reaching the target beats not; among those that reach it
@@ -131,8 +147,9 @@ CompressReport compress_to_target(Database& db, const MeasuredSample& sample, co
     // Progress over every compression the search may run (one more where the grid may change).
     const double share = 1.0 / (std::max(1, target.max_attempts) + (grid_free ? 1 : 0));
     if (options.progress)
-      o.progress = [&, done = tried.size()](CompressProgress p) {
+      o.progress = [&, done = tried.size(), what = describe_attempt(tried, q, overrides, metric)](CompressProgress p) {
         p.fraction = std::min(1.0, (double(done) + p.fraction) * share);
+        p.attempt = what;
         options.progress(p);
       };
     CompressReport report = compress_material(trial, sample, name, o);
