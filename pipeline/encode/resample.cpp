@@ -30,6 +30,10 @@ AngularGrid grid_settings(const ParameterDictionary& config) {
   return g;
 }
 
+nlohmann::json grid_section(const AngularGrid& g) {
+  return {{"n_beta", g.n_beta}, {"n_alpha", g.n_alpha}, {"n_theta_v", g.n_theta_v}, {"n_phi_v", g.n_phi_v}};
+}
+
 ResampleSettings ResampleSettings::defaults() { return from(ParameterDictionary::embedded_default("pipeline")); }
 
 namespace {

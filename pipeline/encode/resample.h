@@ -46,6 +46,8 @@ struct ResampleSettings {
 
 // The "grid" section of a pipeline configuration: the angular grid texels are resampled onto.
 AngularGrid grid_settings(const ParameterDictionary& config);
+// The "grid" section that grid_settings reads back as `g`.
+nlohmann::json grid_section(const AngularGrid& g);
 
 // One entry of a sparse row: a column index (a measured pair, or a slot) and its weight.
 struct SparseEntry {

@@ -11,6 +11,7 @@
 #include "pipeline/decode/reconstruct.h"
 #include "pipeline/encode/ceiling.h"
 #include "pipeline/encode/quality.h"
+#include "pipeline/encode/resample.h"
 #include "pipeline/format/database.h"
 #include "pipeline/metrics/btf_cielab.h"
 #include "pipeline/metrics/metrics.h"
@@ -56,10 +57,6 @@ struct Attempt {
 // an MSSIM target down: the measured views lie on rings of up to 24 azimuths, which 16 phi_v nodes
 // undersample (docs/encoder.md "Target": wool 128's ceiling 0.838 on 16, 0.971 on 24).
 constexpr int kFinerPhiV = 24;
-
-nlohmann::json grid_json(const AngularGrid& g) {
-  return {{"n_beta", g.n_beta}, {"n_alpha", g.n_alpha}, {"n_theta_v", g.n_theta_v}, {"n_phi_v", g.n_phi_v}};
-}
 
 // What the progress says of the compression about to run at quality q (CompressProgress::attempt).
 std::string describe_attempt(const std::vector<Attempt>& tried, double q, const nlohmann::json& overrides,
@@ -128,7 +125,7 @@ CompressReport compress_to_target(Database& db, const MeasuredSample& sample, co
   // user's settings name a grid.
   nlohmann::json overrides = target.overrides.is_null() ? nlohmann::json::object() : target.overrides;
   const bool grid_named = overrides.is_object() && overrides.contains("grid");
-  if (has_content(db) && !grid_named) overrides["grid"] = grid_json(db.codebooks.grid);
+  if (has_content(db) && !grid_named) overrides["grid"] = grid_section(db.codebooks.grid);
   const bool grid_free = !has_content(db) && !grid_named;
   // What the search aims at: the target, or a little under the parametrization's ceiling where
   // the target lies above what any quality can give (measured once the first attempt misses).
