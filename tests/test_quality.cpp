@@ -52,12 +52,19 @@ TEST_CASE("higher quality: every threshold lower or equal, the top ones strictly
       if (q + 2.5 <= 90) CHECK(b[k] == shipped[k]);
     }
     CHECK(b["compose_p3"] == (q + 2.5 > 90));
+    // The share of phase-3 texels that may compose P3 entries rises from none just above Q 90 to
+    // all from kComposeQuality on.
+    if (q > 90) CHECK(double(b["compose_p3_share"]) >= double(a["compose_p3_share"]));
+    if (q >= 90 && q + 2.5 <= kComposeQuality) CHECK(double(b["compose_p3_share"]) > double(a["compose_p3_share"]));
+    if (q + 2.5 >= kComposeQuality || q + 2.5 <= 90) CHECK(double(b["compose_p3_share"]) == 1.0);
     if (q >= 90) {
       CHECK(double(b["phase1_fraction"]) > double(a["phase1_fraction"]));
       CHECK(double(b["phase2_fraction"]) > double(a["phase2_fraction"]));
       CHECK(double(b["relax_factor"]) < double(a["relax_factor"]));
     }
   }
+  // Continuous at Q 90: just above it almost no texel composes a P3 entry.
+  CHECK(double(at(90.001).json()["schedule"]["compose_p3_share"]) == doctest::Approx(0.0005));
   // At Q 100 every texel grows the code-books: phase 3 has nothing left to compose from frozen ones.
   const nlohmann::json top = at(100).json()["schedule"];
   CHECK(double(top["phase1_fraction"]) + double(top["phase2_fraction"]) == doctest::Approx(1.0));

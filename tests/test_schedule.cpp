@@ -240,6 +240,23 @@ TEST_CASE("phase-3 composition: new P4 entries (and P3 entries with compose_p3),
   CHECK(sum3 < sum2);
   MESSAGE("phase-3 P3 rows " << with_p3.p3_index.rows() - p3_grown << ", mean dissimilarity " << sum2 / 256 << " -> "
                              << sum3 / 256);
+  // compose_p3_share: only the texels of an evenly spread share of the Halton order compose P3
+  // entries. None: the run without; half: fewer new P3 rows than all, more than none.
+  auto run_share = [&](double share, Codebooks& k) {
+    ScheduleSettings s = sch;
+    s.compose_p3 = true;
+    s.compose_p3_share = share;
+    s.threads = 1;
+    s.search = "pruned";
+    return run_schedule(k, Dynamic::LDR, 16, 16, source, tight, sim, s);
+  };
+  Codebooks none(mat.grid), half(mat.grid);
+  run_share(0, none);
+  CHECK(none == without_p3);
+  run_share(0.5, half);
+  MESSAGE("phase-3 P3 rows with half the texels composing them: " << half.p3_index.rows() - p3_grown);
+  CHECK(half.p3_index.rows() > p3_grown);
+  CHECK(half.p3_index.rows() < with_p3.p3_index.rows());
   for (const auto& [threads, search] : variants) {
     CAPTURE(search);
     Codebooks k(mat.grid);

@@ -25,6 +25,7 @@ ScheduleSettings ScheduleSettings::from(const ParameterDictionary& d) {
   s.compose_threshold = d.number("schedule.compose_threshold", 0.0, 2.0);
   s.compose_gain = d.number("schedule.compose_gain", 0.0, 2.0);
   s.compose_p3 = d.boolean("schedule.compose_p3");
+  s.compose_p3_share = d.number("schedule.compose_p3_share", 0.0, 1.0);
   s.refine = RefineSettings::from(d);
   if (s.search != "auto" && s.search != "pruned" && s.search != "batched" && s.search != "batched-reference")
     throw ConfigError(d.origin() + ": 'schedule.search' = '" + s.search +
@@ -77,6 +78,10 @@ std::vector<uint32_t> halton_order(int width, int height) {
 }
 
 namespace {
+
+// Whether the texel at position j of the Halton order is among an evenly spread share s of them:
+// a function of the position alone, so the same on every tile split, thread count and resume.
+bool in_share(size_t j, double s) { return std::floor(double(j + 1) * s) > std::floor(double(j) * s); }
 
 // CPU seconds of the whole process: over a phase, divided by its wall seconds, how many cores it kept busy.
 double process_cpu_seconds() {
@@ -236,7 +241,8 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
       std::vector<P4Proposal> proposals(todo.size());
       std::vector<char> proposed(todo.size());
       parallel_for(0, todo.size(), [&](size_t k) {
-        proposed[k] = encoder->propose_p4(texels + todo[k] * 3 * samples, &proposals[k], schedule.compose_p3);
+        proposed[k] = encoder->propose_p4(texels + todo[k] * 3 * samples, &proposals[k],
+                                           schedule.compose_p3 && in_share(at + todo[k], schedule.compose_p3_share));
       }, ParallelOptions{size_t(schedule.threads), 1});
       const auto t_adopt = std::chrono::steady_clock::now();
       result.report.propose_seconds += std::chrono::duration<double>(t_adopt - t_propose).count();

@@ -34,10 +34,13 @@ struct ScheduleSettings {
   // Phase-3 composition: a texel whose best stored P4 entry is farther than compose_threshold
   // (dissimilarity; 2 = never) gets a new P4 entry of the best stored P3 entry per phi_v group when
   // that is at least compose_gain closer (Encoder::propose_p4); with compose_p3, a group whose best
-  // stored P3 entry misses the P3 threshold may get a new P3 entry of stored M entries as well.
+  // stored P3 entry misses the P3 threshold may get a new P3 entry of stored M entries as well, in
+  // the texels of an evenly spread share compose_p3_share of the Halton order (so that the quality
+  // rule can switch it on gradually).
   double compose_threshold = 0;
   double compose_gain = 0;
   bool compose_p3 = false;
+  double compose_p3_share = 1;
   // Lloyd refinement between the growing phases and phase 3 (the "refine" section; off when
   // refine.iterations is 0): phase 3 then assigns every texel, those of phases 1 and 2 included.
   RefineSettings refine;
