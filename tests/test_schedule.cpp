@@ -212,9 +212,10 @@ TEST_CASE("phase-3 composition: new P4 entries (and P3 entries with compose_p3),
   // new P4 row, the texels come out closer in sum, and thread count and search path do not matter.
   Thresholds tight = Thresholds::defaults();
   tight.p3 = 0.01;
-  auto run_p3 = [&](bool compose_p3, int threads, const std::string& search, Codebooks& k) {
+  auto run_p3 = [&](bool compose_p3, int threads, const std::string& search, Codebooks& k, double share = 1) {
     ScheduleSettings s = sch;
     s.compose_p3 = compose_p3;
+    s.compose_p3_share = share;
     s.threads = threads;
     s.search = search;
     return run_schedule(k, Dynamic::LDR, 16, 16, source, tight, sim, s);
@@ -242,18 +243,10 @@ TEST_CASE("phase-3 composition: new P4 entries (and P3 entries with compose_p3),
                              << sum3 / 256);
   // compose_p3_share: only the texels of an evenly spread share of the Halton order compose P3
   // entries. None: the run without; half: fewer new P3 rows than all, more than none.
-  auto run_share = [&](double share, Codebooks& k) {
-    ScheduleSettings s = sch;
-    s.compose_p3 = true;
-    s.compose_p3_share = share;
-    s.threads = 1;
-    s.search = "pruned";
-    return run_schedule(k, Dynamic::LDR, 16, 16, source, tight, sim, s);
-  };
   Codebooks none(mat.grid), half(mat.grid);
-  run_share(0, none);
+  run_p3(true, 1, "pruned", none, 0);
   CHECK(none == without_p3);
-  run_share(0.5, half);
+  run_p3(true, 1, "pruned", half, 0.5);
   MESSAGE("phase-3 P3 rows with half the texels composing them: " << half.p3_index.rows() - p3_grown);
   CHECK(half.p3_index.rows() > p3_grown);
   CHECK(half.p3_index.rows() < with_p3.p3_index.rows());
