@@ -9,11 +9,9 @@
 #include "pipeline/encode/quality.h"
 #include "pipeline/encode/schedule.h"
 #include "pipeline/util/config.h"
-#include "pipeline/decode/reconstruct.h"
-#include "pipeline/format/database.h"
 #include "pipeline/io/sample_io.h"
 #include "pipeline/io/synthetic.h"
-#include "pipeline/metrics/metrics.h"
+#include "support/measured_compression.h"
 #include "support/test_paths.h"
 
 using namespace btfvq;
@@ -101,13 +99,7 @@ TEST_CASE("--quality is monotone end to end: tile, leather and fabric at 64 x 64
     uint64_t last_bytes = 0;
     for (double q : {20.0, 40.0, 60.0, 80.0}) {
       CAPTURE(q);
-      Database db;
-      CompressOptions options;
-      options.config = at(q);
-      compress_material(db, sample, "m", options);
-      quantize_new_rows(db);
-      const uint64_t bytes = serialize_database(db).size();
-      const double mssim = evaluate(sample, reconstruct_sample(db, "m", sample)).mssim_y;
+      const auto [bytes, mssim] = test::compress_and_measure(sample, at(q));
       // Tile sits at its ceiling from Q 20 on (one P4 entry, MSSIM 0.997): there the steps move
       // MSSIM by +-1e-4 and the file by one P1 row more or less (3,240-3,285 bytes: greedy growth
       // in texel order can match a row at a tighter threshold that a looser one had inserted
@@ -135,12 +127,7 @@ TEST_CASE("the proxies' luminance bands: leather at 64 x 64 comes out smaller th
   const MeasuredSample sample = load_sample(zip);
   REQUIRE(SimilaritySettings::defaults().proxy_bands > 1);
   auto run = [&](const nlohmann::json& overrides) {
-    Database db;
-    CompressOptions options;
-    options.config = pipeline_config(overrides, "test");
-    compress_material(db, sample, "m", options);
-    quantize_new_rows(db);
-    return std::pair{serialize_database(db).size(), evaluate(sample, reconstruct_sample(db, "m", sample)).mssim_y};
+    return test::compress_and_measure(sample, pipeline_config(overrides, "test"));
   };
   const auto [banded_bytes, banded_mssim] = run(nlohmann::json::object());
   const auto [one_bytes, one_mssim] = run({{"similarity", {{"proxy_bands", 1}}}});

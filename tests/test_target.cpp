@@ -16,6 +16,7 @@
 #include "pipeline/io/synthetic.h"
 #include "pipeline/metrics/btf_cielab.h"
 #include "pipeline/metrics/metrics.h"
+#include "support/measured_compression.h"
 
 using namespace btfvq;
 
@@ -266,13 +267,9 @@ TEST_CASE("a target between Q 90 and 92 can be landed on: across the composition
   std::vector<double> mssim;
   std::vector<uint64_t> bytes;
   for (double q : {90.0, 90.0 + 2.0 / 3, 90.0 + 4.0 / 3, kComposeQuality}) {
-    Database db;
-    CompressOptions options;
-    options.config = pipeline_config(quality_settings(q), "quality");
-    compress_material(db, sample, "m", options);
-    quantize_new_rows(db);
-    bytes.push_back(serialize_database(db).size());
-    mssim.push_back(evaluate(sample, reconstruct_sample(db, "m", sample)).mssim_y);
+    const test::Measured m = test::compress_and_measure(sample, pipeline_config(quality_settings(q), "quality"));
+    bytes.push_back(m.bytes);
+    mssim.push_back(m.mssim);
     MESSAGE("Q " << q << ": MSSIM " << mssim.back() << ", " << bytes.back() << " B");
   }
   const double rise = mssim.back() - mssim.front();
