@@ -1,8 +1,6 @@
 // Preview renders (pipeline/decode/preview.h, `btfvq render --scene`): geometry, lights, options, the CLI.
 #include <doctest/doctest.h>
 
-#include <OpenImageIO/imageio.h>
-
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
@@ -12,6 +10,7 @@
 #include "pipeline/decode/decoder.h"
 #include <btfvq/error.h>
 #include "pipeline/decode/preview.h"
+#include "support/image_file.h"
 #include "support/test_paths.h"
 
 using namespace btfvq;
@@ -77,11 +76,11 @@ TEST_CASE("btfvq render --scene writes the preview as PNG; the per-direction mod
   const std::string cli = (test::bin_dir() / "btfvq").string() + " render " + db.string() + " --material alu ";
   std::string out;
   REQUIRE_MESSAGE(test::run_command(cli + "--scene sphere --light 45,135 --size 64 --out " + (dir / "s.png").string(), &out) == 0, out);
-  auto in = OIIO::ImageInput::open((dir / "s.png").string());
-  REQUIRE(in);
-  CHECK(in->spec().width == 64);
-  std::vector<unsigned char> pixels(64 * 64 * 3);
-  REQUIRE(in->read_image(0, 0, 0, 3, OIIO::TypeDesc::UINT8, pixels.data()));
+  const test::Image image = test::read_image(dir / "s.png");
+  REQUIRE(image.width == 64);
+  REQUIRE(image.height == 64);
+  REQUIRE(image.channels == 3);
+  const std::vector<uint8_t>& pixels = image.pixels;
   PreviewOptions o;
   o.size = 64;
   const Decoder dec(alu());

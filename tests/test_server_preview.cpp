@@ -6,44 +6,18 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
-#include <OpenImageIO/filesystem.h>
-#include <OpenImageIO/imageio.h>
-
 #include <chrono>
 #include <filesystem>
 #include <nlohmann/json.hpp>
 #include <thread>
 
+#include "support/image_file.h"
 #include "support/server_process.h"
 #include "support/test_paths.h"
 
 using namespace btfvq::test;
 namespace fs = std::filesystem;
 using nlohmann::json;
-
-namespace {
-
-struct Image {
-  int width = 0, height = 0, channels = 0;
-  std::vector<unsigned char> pixels;
-  const unsigned char* at(int x, int y) const { return &pixels[(size_t(y) * size_t(width) + size_t(x)) * size_t(channels)]; }
-};
-
-Image decode_png(const std::string& bytes) {
-  std::vector<unsigned char> data(bytes.begin(), bytes.end());
-  OIIO::Filesystem::IOMemReader proxy(data.data(), data.size());
-  auto in = OIIO::ImageInput::open("preview.png", nullptr, &proxy);
-  REQUIRE(in);
-  Image im;
-  im.width = in->spec().width;
-  im.height = in->spec().height;
-  im.channels = in->spec().nchannels;
-  im.pixels.resize(size_t(im.width) * size_t(im.height) * size_t(im.channels));
-  REQUIRE(in->read_image(0, 0, 0, im.channels, OIIO::TypeDesc::UINT8, im.pixels.data()));
-  return im;
-}
-
-}  // namespace
 
 TEST_CASE("GET .../materials/{name}/preview.png: the material on a sphere, lit, on a dark background") {
   const fs::path dir = scratch_dir("server-preview");
@@ -70,21 +44,21 @@ TEST_CASE("GET .../materials/{name}/preview.png: the material on a sphere, lit, 
   REQUIRE(r);
   REQUIRE(r->status == 200);
   CHECK(r->get_header_value("Content-Type") == "image/png");
-  const Image im = decode_png(r->body);
+  const Image im = decode_image(r->body);
   REQUIRE(im.width == 96);
   REQUIRE(im.height == 96);
   REQUIRE(im.channels == 3);
-  CHECK(im.at(0, 0)[1] == 40);  // background outside the sphere
-  CHECK(im.at(95, 95)[1] == 40);
+  CHECK(im.at(0, 0, 1) == 40);  // background outside the sphere
+  CHECK(im.at(95, 95, 1) == 40);
   // The lit side (up-left, facing the light) is brighter than the side turned away from it.
-  const int lit = im.at(36, 36)[1], dark = im.at(80, 74)[1];
+  const int lit = im.at(36, 36, 1), dark = im.at(80, 74, 1);
   CHECK(lit > 60);
   CHECK(lit > dark + 20);
 
   auto env = c.Get("/v1/databases/shop/materials/wood8/preview.png?size=64&env=1&scene=plane");
   REQUIRE(env);
   CHECK(env->status == 200);
-  CHECK(decode_png(env->body).width == 64);
+  CHECK(decode_image(env->body).width == 64);
 
   auto missing = c.Get("/v1/databases/shop/materials/nope/preview.png");
   REQUIRE(missing);

@@ -9,7 +9,6 @@
 // the last P6 byte arrived, and the listing page names the database and the material.
 #include <doctest/doctest.h>
 #include <httplib.h>
-#include <OpenImageIO/imageio.h>
 
 #include <array>
 #include <cmath>
@@ -20,6 +19,7 @@
 #include <sstream>
 
 #include "pipeline/format/database.h"
+#include "support/image_file.h"
 #include "support/server_process.h"
 #include "support/test_paths.h"
 
@@ -29,22 +29,6 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 namespace {
-
-struct Image {
-  int width = 0, height = 0, channels = 0;
-  std::vector<uint8_t> pixels;
-  int at(int x, int y, int c) const { return pixels[(size_t(y) * size_t(width) + size_t(x)) * size_t(channels) + size_t(c)]; }
-};
-
-Image read_png(const fs::path& path) {
-  auto in = OIIO::ImageInput::open(path.string());
-  REQUIRE_MESSAGE(in, "cannot read " << path);
-  const OIIO::ImageSpec& spec = in->spec();
-  Image im{spec.width, spec.height, spec.nchannels, {}};
-  im.pixels.resize(size_t(im.width) * size_t(im.height) * size_t(im.channels));
-  REQUIRE(in->read_image(0, 0, 0, im.channels, OIIO::TypeDesc::UINT8, im.pixels.data()));
-  return im;
-}
 
 double bytes_served(const std::string& url) {
   httplib::Client c(url);
@@ -170,7 +154,7 @@ TEST_CASE("viewer in headless Chromium: streams a material, draws it like btfvq 
 
   // (Plain blocks, not SUBCASEs: doctest would run the whole case, browser and all, once per subcase.)
   {  // the plane view is btfvq render's image
-    const Image render = read_png(dir / "leather.png"), canvas = read_png(dir / "plane" / "canvas.png");
+    const Image render = read_image(dir / "leather.png"), canvas = read_image(dir / "plane" / "canvas.png");
     REQUIRE(render.width == 32);
     REQUIRE(canvas.width == 512);
     const auto diff = mean_difference(render, canvas);
@@ -213,7 +197,7 @@ TEST_CASE("viewer in headless Chromium: streams a material, draws it like btfvq 
 
   {  // HDR, with code-book rows of both versions: the plane view is btfvq render's image too
     run_browser(server.url() + "/viewer/shop/wood-hdr?scene=plane&light=" + light + "&view=" + view, dir / "hdr");
-    const Image render = read_png(dir / "wood-hdr.png"), canvas = read_png(dir / "hdr" / "canvas.png");
+    const Image render = read_image(dir / "wood-hdr.png"), canvas = read_image(dir / "hdr" / "canvas.png");
     REQUIRE(render.width == 16);
     const auto diff = mean_difference(render, canvas);
     std::printf("plane, wood-hdr: viewer vs btfvq render: mean absolute difference R %.3f G %.3f B %.3f of 255\n", diff[0],
@@ -225,7 +209,7 @@ TEST_CASE("viewer in headless Chromium: streams a material, draws it like btfvq 
     btfvq_ok(dir, "render " + db.string() + " --material leather --scene sphere --light 40,135 --tiles 2 --size 512 --out " +
                  (dir / "sphere.png").string());
     run_browser(server.url() + "/viewer/shop/leather?scene=sphere&light=40,135&tiles=2", dir / "sphere");
-    const auto diff = mean_difference(read_png(dir / "sphere.png"), read_png(dir / "sphere" / "canvas.png"));
+    const auto diff = mean_difference(read_image(dir / "sphere.png"), read_image(dir / "sphere" / "canvas.png"));
     std::printf("sphere: viewer vs btfvq render --scene sphere: mean absolute difference R %.3f G %.3f B %.3f of 255\n",
                 diff[0], diff[1], diff[2]);
     for (double d : diff) CHECK(d <= 2.0);
