@@ -1,6 +1,6 @@
 // Real data: the proposte BTF (256 x 256, measured by the Bonn group) as the original authors'
 // compressor stored it (tests/data/btfbase/proposte), decoded at the 81 x 81 measured
-// directions and compressed again by btfvq at the default and at a high-quality setting. The
+// directions and compressed again by btfvq at the default quality (Q 50) and at Q 80 (`--quality`). The
 // reference for the metrics is the decoded sample, i.e. the input already went through MLVQ once.
 // Also the whole-sample figures of the speed issue: time per stage and peak memory at 256 x 256.
 #include <cstring>
@@ -10,6 +10,7 @@
 #include "bench/bench_common.h"
 #include "pipeline/io/btfbase.h"
 #include "pipeline/encode/compress.h"
+#include "pipeline/encode/quality.h"
 #include "pipeline/format/database.h"
 #include "pipeline/metrics/metrics.h"
 #include "pipeline/decode/reconstruct.h"
@@ -46,9 +47,9 @@ int main(int argc, char** argv) {
 
   struct Setting {
     std::string name;
-    double scale;  // on every SSIM threshold of configs/pipeline.json
+    double quality;  // `btfvq compress --quality`
   };
-  const Setting settings[] = {{"default", 1.0}, {"high quality (thresholds x 0.6)", 0.6}};
+  const Setting settings[] = {{"default (Q 50)", kDefaultQuality}, {"Q 80", 80}};
   std::ostringstream md;
   nlohmann::json figures;
   md << "proposte (" << sample.width() << " x " << sample.height()
@@ -57,21 +58,16 @@ int main(int argc, char** argv) {
         "database and compared with that decoded sample. **Caveat:** the input already went through MLVQ once, so it "
         "is easier to compress than the measured BTF was; the original compressor's figures below are against the "
         "measured data.\n\n"
-     << "| compressor | setting | bytes | ratio | MSSIM (Y) | PSNR dB | CIEDE2000 mean / p95 | resample s | phase 1 / 2 / 3 s "
-        "| write s | total s | peak memory MB |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+     << "| compressor | setting | bytes | ratio | MSSIM (Y) | PSNR dB | CIEDE2000 mean / p95 | resample s | phase 1 / 2 / 3 "
+        "/ refine s | write s | total s | peak memory MB |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   if (!args.quick)
     md << "| original MLVQ (quantreport, paper Table 2) | as published | " << size_t(kOriginalBytes) << " | 1:"
        << kOriginalRatio << " | | | | | | | | |\n";
   for (const Setting& s : settings) {
-    ParameterDictionary config = ParameterDictionary::embedded_default("pipeline");
-    nlohmann::json t;
-    for (const char* k : {"p4", "p3", "m", "p2", "p1", "i2", "i1"})
-      t[k] = config.number(std::string("thresholds.ssim.") + k, 0, 2) * s.scale;
-    config.merge(ParameterDictionary(nlohmann::json{{"thresholds", {{"ssim", t}}}}, "bench_realdata"));
     sw.reset();
     Database db;
     CompressOptions options;
-    options.config = config;
+    options.config = pipeline_config(quality_settings(s.quality), "bench_realdata");
     const CompressReport r = compress_material(db, sample, "proposte", options);
     const double compress_seconds = sw.seconds();
     bench::Stopwatch write_sw;
@@ -85,10 +81,11 @@ int main(int argc, char** argv) {
     const auto& ph = r.json["phases"];
     char row[768];
     std::snprintf(row, sizeof row,
-                  "| btfvq | %s | %llu | 1:%.0f | %.3f | %.1f | %.2f / %.2f | %.0f | %.0f / %.0f / %.0f | %.1f | %.0f | %.0f |\n",
+                  "| btfvq | %s | %llu | 1:%.0f | %.3f | %.1f | %.2f / %.2f | %.0f | %.0f / %.0f / %.0f / %.0f | %.1f | %.0f | %.0f |\n",
                   s.name.c_str(), (unsigned long long)bytes, ratio, e.mssim_y, e.psnr, e.ciede2000_mean, e.ciede2000_p95,
                   r.json["seconds"]["resample"].get<double>() + r.json["seconds"]["resample_operator"].get<double>(),
                   ph[0]["seconds"].get<double>(), ph[1]["seconds"].get<double>(), ph[2]["seconds"].get<double>(),
+                  r.json["refine"]["seconds"].get<double>(),
                   write_seconds, total, bench::peak_rss_mb());
     md << row;
     figures[s.name] = {{"bytes", bytes}, {"ratio", ratio}, {"mssim", e.mssim_y}, {"psnr", e.psnr},
