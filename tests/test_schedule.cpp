@@ -151,6 +151,17 @@ TEST_CASE("phase-3 composition: new P4 entries (and P3 entries with compose_p3),
   sch.phase2_fraction = 0.02;
   sch.tile_texels = 16;
   sch.compose_threshold = 0.0;  // every phase-3 texel tries
+  // Phase 3 chooses and composes by schedule.assign_metric: SSIM (the batched kernel's paths) or
+  // MSE (shipped); "closer" below is measured in that metric, independently of the encoder.
+  Metric assign = Metric::MSE;
+  SUBCASE("entries chosen by SSIM") { assign = Metric::SSIM; }
+  SUBCASE("entries chosen by MSE") { assign = Metric::MSE; }
+  CAPTURE(assign == Metric::SSIM);
+  sch.assign_metric = assign;
+  sch.assign_thresholds = Thresholds::defaults(assign);
+  sch.compose_gain = assign == Metric::SSIM ? 0.009 : 2.0;
+  SimilaritySettings measure = sim;
+  measure.metric = assign;
   auto run = [&](int threads, const std::string& search, Codebooks& k) {
     ScheduleSettings s = sch;
     s.threads = threads;
@@ -170,7 +181,7 @@ TEST_CASE("phase-3 composition: new P4 entries (and P3 entries with compose_p3),
   Codebooks plain(mat.grid);
   ScheduleSettings off = sch;
   off.threads = 1;
-  off.compose_threshold = 2.0;
+  off.compose_threshold = assign == Metric::SSIM ? 2.0 : 1e6;  // never
   const ScheduleResult r0 = run_schedule(plain, Dynamic::LDR, 16, 16, source, Thresholds::defaults(), sim, off);
   CHECK(r0.report.composed == 0);
   CHECK(r0.report.sizes[2][CodebookId::P4] == r.report.sizes[1][CodebookId::P4]);
@@ -178,7 +189,7 @@ TEST_CASE("phase-3 composition: new P4 entries (and P3 entries with compose_p3),
   std::vector<float> recon(3 * mat.grid.samples());
   auto distance = [&](const Codebooks& k, const ScheduleResult& res, uint32_t id) {
     reconstruct_texel(k, Dynamic::LDR, uint32_t(res.p6_index[id]), res.p6_scale[id], recon.data());
-    return texel_dissimilarity(sim, Dynamic::LDR, mat.grid, texel(id).data(), recon.data());
+    return texel_dissimilarity(measure, Dynamic::LDR, mat.grid, texel(id).data(), recon.data());
   };
   size_t using_composed = 0;
   double sum_with = 0, sum_without = 0;
@@ -214,6 +225,7 @@ TEST_CASE("phase-3 composition: new P4 entries (and P3 entries with compose_p3),
   tight.p3 = 0.01;
   auto run_p3 = [&](bool compose_p3, int threads, const std::string& search, Codebooks& k, double share = 1) {
     ScheduleSettings s = sch;
+    s.assign_thresholds.p3 = assign == Metric::SSIM ? 0.01 : 0.05;  // an MSE in squared 8-bit units
     s.compose_p3 = compose_p3;
     s.compose_p3_share = share;
     s.threads = threads;
@@ -267,7 +279,10 @@ TEST_CASE("schedule settings come from the config; bad values are ConfigErrors")
   CHECK(s.phase2_fraction == doctest::Approx(0.06));
   CHECK(s.relax_factor == doctest::Approx(2.5));
   CHECK(s.tile_texels == 256);
-  for (const char* bad : {R"({"schedule": {"phase1_fraction": -0.01}})", R"({"schedule": {"phase1_fraction": 0.7, "phase2_fraction": 0.5}})",
+  CHECK(s.assign_metric == Metric::MSE);
+  CHECK(s.assign_thresholds.p4 == doctest::Approx(Thresholds::defaults(Metric::MSE).p4));
+  for (const char* bad : {R"({"schedule": {"assign_metric": "l1"}})", R"({"schedule": {"compose_threshold": -1}})",
+                          R"({"schedule": {"phase1_fraction": -0.01}})", R"({"schedule": {"phase1_fraction": 0.7, "phase2_fraction": 0.5}})",
                           R"({"schedule": {"relax_factor": 0.5}})", R"({"schedule": {"tile_texels": 0}})",
                           R"({"schedule": {"threads": 1.5}})"}) {
     auto e = ParameterDictionary::embedded_default("pipeline");

@@ -39,6 +39,10 @@ nlohmann::json quality_settings(double q) {
     const double cap = key == "c" ? 1e6 : key == "p1" || key == "i1" ? 0.95 : 2.0;
     out["thresholds"]["ssim"][key] = std::min(cap, value.get<double>() * f);
   }
+  // The MSE thresholds (the growing phases' with similarity.metric "mse"; with the shipped
+  // schedule.assign_metric they bound the groups compose_p3 rebuilds) follow the same factor.
+  for (const auto& [key, value] : shipped["thresholds"]["mse"].items())
+    out["thresholds"]["mse"][key] = value.get<double>() * f;
   // Growth, geometric in the shares: phase 1 three times the shipped share at Q 100, phase 2 every
   // texel phase 1 leaves; phase 2 relaxes its thresholds less (shipped 2.5 down to 1.5).
   const nlohmann::json& schedule = shipped["schedule"];
@@ -48,8 +52,10 @@ nlohmann::json quality_settings(double q) {
   out["schedule"]["phase1_fraction"] = p1;
   out["schedule"]["phase2_fraction"] = std::min(1.0 - p1, p2 * std::pow((1.0 - p1) / p2, g));
   out["schedule"]["relax_factor"] = schedule["relax_factor"].get<double>() * (1 - g) + 1.5 * g;
-  // Composition: from texels this much farther than the P4 bound, when it gains this much.
-  out["schedule"]["compose_threshold"] = std::min(2.0, schedule["compose_threshold"].get<double>() * f);
+  // Composition: from texels this much farther than the P4 bound, when it gains this much (in the
+  // units of schedule.assign_metric; an SSIM dissimilarity is at most 2).
+  const double most = schedule["assign_metric"] == "ssim" ? 2.0 : 1e6;
+  out["schedule"]["compose_threshold"] = std::min(most, schedule["compose_threshold"].get<double>() * f);
   out["schedule"]["compose_gain"] = schedule["compose_gain"].get<double>() * f;
   // Above kGrowthQuality phase 3 may also compose new P3 entries of stored M entries: on leather 64
   // it bought more quality per byte than growth (Q 90 with it 0.939 at 1:90, Q 95 without it 0.930

@@ -22,8 +22,13 @@ ScheduleSettings ScheduleSettings::from(const ParameterDictionary& d) {
   s.tile_texels = d.integer("schedule.tile_texels", 1, 1 << 16);
   s.threads = d.integer("schedule.threads", 1, 256);
   s.search = d.string("schedule.search");
-  s.compose_threshold = d.number("schedule.compose_threshold", 0.0, 2.0);
-  s.compose_gain = d.number("schedule.compose_gain", 0.0, 2.0);
+  const std::string assign = d.string("schedule.assign_metric");
+  if (assign == "mse") s.assign_metric = Metric::MSE;
+  else if (assign == "ssim") s.assign_metric = Metric::SSIM;
+  else throw ConfigError(d.origin() + ": 'schedule.assign_metric' = '" + assign + "' must be \"mse\" or \"ssim\"");
+  s.assign_thresholds = Thresholds::from(d, s.assign_metric);
+  s.compose_threshold = d.number("schedule.compose_threshold", 0.0, 1e6);
+  s.compose_gain = d.number("schedule.compose_gain", 0.0, 1e6);
   s.compose_p3 = d.boolean("schedule.compose_p3");
   s.compose_p3_share = d.number("schedule.compose_p3_share", 0.0, 1.0);
   s.refine = RefineSettings::from(d);
@@ -136,16 +141,31 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
     result = resume->result;
   }
   const CodebookSizes first = CodebookSizes::of(books);  // rows of earlier materials are not refined
+  EncoderStats grown = resume ? resume->result.report.encoder : EncoderStats{};  // of encoders replaced
   // A resumed run starts in phase 3, with the thresholds the growing phases ended with.
-  auto make_encoder = [&](const Thresholds& t) {
-    auto e = std::make_unique<Encoder>(books, dyn, t, similarity);
+  auto make_encoder = [&](const Thresholds& t, const SimilaritySettings& sim) {
+    auto e = std::make_unique<Encoder>(books, dyn, t, sim);
     e->set_threads(size_t(schedule.threads));
     return e;
   };
-  auto encoder = make_encoder(resume && n2 > 0 ? thresholds.relaxed(schedule.relax_factor) : thresholds);
-  EncoderStats grown = resume ? resume->result.report.encoder : EncoderStats{};  // of encoders replaced
+  // The refinement and phase 3 choose entries by schedule.assign_metric, with its thresholds as the
+  // growing phases ended them.
+  SimilaritySettings assign_similarity = similarity;
+  assign_similarity.metric = schedule.assign_metric;
+  const Thresholds& assign_base = schedule.assign_metric == similarity.metric ? thresholds : schedule.assign_thresholds;
+  const Thresholds assign_thresholds = n2 > 0 ? assign_base.relaxed(schedule.relax_factor) : assign_base;
+  auto make_assigner = [&] { return make_encoder(assign_thresholds, assign_similarity); };
+  auto encoder = resume ? make_assigner() : make_encoder(thresholds, similarity);
+  bool assigning = resume != nullptr;
+  auto start_assigning = [&] {
+    if (assigning) return;
+    assigning = true;
+    if (schedule.assign_metric == similarity.metric) return;  // the growing encoder is the assigner
+    grown.add(encoder->stats());
+    encoder = make_assigner();
+  };
   const size_t tile = size_t(schedule.tile_texels);
-  const SearchPath path = schedule.search_path(books.grid, similarity);
+  const SearchPath path = schedule.search_path(books.grid, assign_similarity);
   std::unique_ptr<FrozenSearch> frozen;  // built when phase 3 starts: the code-books are final then
 
   // Lloyd iterations on the first refine_texels texels in Halton order: assign (the phase-3
@@ -159,6 +179,7 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
     as.p4.resize(refine_texels);
     as.scale.resize(refine_texels);
     std::vector<P6Entry> entries;
+    start_assigning();
     for (int it = 0; it < schedule.refine.iterations; ++it) {
       if (progress) progress({2, true, size_t(it), size_t(schedule.refine.iterations), CodebookSizes::of(books)});
       FrozenSearch search(*encoder, path, schedule.threads);
@@ -175,7 +196,7 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
                                           size_t(schedule.threads), assign);
       result.report.refine.push_back(step);
       grown.add(encoder->stats());
-      encoder = make_encoder(encoder->thresholds());
+      encoder = make_assigner();
       if (!(step.mse_before - step.mse_after > schedule.refine.min_gain * step.mse_before)) break;
     }
     result.report.refine_texels = refine_texels;
@@ -227,8 +248,10 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
     if (phase < 3) {
       for (size_t i = 0; i < n; ++i) store(i, encoder->encode_growing(texels + i * 3 * samples));
     } else {
-      if (!frozen)
+      if (!frozen) {
+        start_assigning();
         frozen = std::make_unique<FrozenSearch>(*encoder, path, schedule.threads);
+      }
       std::vector<P6Entry> entries(n);
       frozen->encode(texels, n, entries.data());
       // Proposals in parallel (they read only the frozen P3 and below), adoption in texel order: an
@@ -264,7 +287,8 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
         }
         if (!near.empty()) {
           try {
-            const P6Entry a = encoder->encode_frozen_among(texels + todo[k] * 3 * samples, near, 1.0 - e.dissimilarity);
+            const P6Entry a = encoder->encode_frozen_among(texels + todo[k] * 3 * samples, near,
+                                                          dissimilarity_to_score(schedule.assign_metric, e.dissimilarity, 3 * samples));
             if (a.dissimilarity < e.dissimilarity) e = a;
           } catch (const InputError&) {  // none is closer
           }

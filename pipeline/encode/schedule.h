@@ -31,12 +31,20 @@ struct ScheduleSettings {
   // "batched" (OpenCL, or its C++ reference without OpenCL), "batched-reference" (the kernel's C++
   // reference even on OpenCL: for comparisons). All give the same entries.
   std::string search;
-  // Phase-3 composition: a texel whose best stored P4 entry is farther than compose_threshold
-  // (dissimilarity; 2 = never) gets a new P4 entry of the best stored P3 entry per phi_v group when
-  // that is at least compose_gain closer (Encoder::propose_p4); with compose_p3, a group whose best
-  // stored P3 entry misses the P3 threshold may get a new P3 entry of stored M entries as well, in
-  // the texels of an evenly spread share compose_p3_share of the Halton order (so that the quality
-  // rule can switch it on gradually).
+  // The similarity by which the refinement's assignment and phase 3 choose a texel's P4 entry and
+  // judge a composition (the growing phases keep similarity.metric): MSE by default. The SSIM
+  // percentile is a tail measure, good at deciding whether a code-book needs a new entry, but as
+  // the choice among stored entries it keeps the worst 2 % of a texel's windows close at the cost of
+  // the rest, which the images' MSSIM averages (docs/encoder.md "Assignment by MSE"). Its thresholds
+  // (thresholds.<metric>, relaxed as phase 2's) bound the groups of compose_p3.
+  Metric assign_metric = Metric::MSE;
+  Thresholds assign_thresholds;
+  // Phase-3 composition: a texel whose best stored P4 entry is farther than compose_threshold (a
+  // dissimilarity of assign_metric: MSE in squared 8-bit units, SSIM in [0, 2]) gets a new P4 entry
+  // of the best stored P3 entry per phi_v group when that is at least compose_gain closer
+  // (Encoder::propose_p4); with compose_p3, a group whose best stored P3 entry misses the P3
+  // threshold may get a new P3 entry of stored M entries as well, in the texels of an evenly spread
+  // share compose_p3_share of the Halton order (so that the quality rule can switch it on gradually).
   double compose_threshold = 0;
   double compose_gain = 0;
   bool compose_p3 = false;
