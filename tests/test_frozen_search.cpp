@@ -1,5 +1,6 @@
 // The batched phase-3 search (pipeline/encode/frozen_search.h, kernels/search.cl): the kernel agrees with
-// its C++ reference, its brackets hold the exact scores, and every path picks the same entries.
+// its C++ reference, its brackets hold the exact scores, and every path picks the same entries; under
+// MSE the closed form's brackets hold the exact squared errors and it picks the pruned search's entries.
 #include <doctest/doctest.h>
 
 #include "pipeline/encode/frozen_search.h"
@@ -99,6 +100,64 @@ TEST_CASE("batched (OpenCL and reference) and pruned phase 3 choose identical en
   }
 }
 
+TEST_CASE("under MSE the closed-form batch brackets the exact errors and picks the pruned search's entries") {
+  Grown g;  // grown by SSIM, assigned by MSE: as run_schedule does with schedule.assign_metric "mse"
+  SimilaritySettings sim = SimilaritySettings::defaults();
+  sim.metric = Metric::MSE;
+  Encoder mse(g.books, Dynamic::LDR, Thresholds::defaults(Metric::MSE), sim);
+  REQUIRE(g.books.p4_index.rows() > 4);
+  // Every batched path is the closed form under MSE: it needs no device.
+  FrozenSearch batch(mse, SearchPath::BatchedOpenCL, 2), pruned(mse, SearchPath::Pruned, 2);
+  CHECK(batch.path() == SearchPath::BatchedMSE);
+  CHECK(pruned.path() == SearchPath::Pruned);
+  CHECK(FrozenSearch(mse, SearchPath::BatchedReference, 1).path() == SearchPath::BatchedMSE);
+
+  const size_t slots = g.books.p4_index.rows(), values = 3 * g.mat.grid.samples();
+  std::vector<FrozenQuery> queries;
+  std::vector<uint32_t> candidates;
+  for (uint32_t t = 0; t < 16; ++t) {
+    queries.push_back(mse.frozen_query(g.mat.texel(100 + t).data()));
+    for (uint32_t e = 0; e < slots; ++e) candidates.push_back(e);
+  }
+  std::vector<double> error, margin;
+  batch.squared_errors(queries, candidates, slots, &error, &margin);
+  REQUIRE(error.size() == 16 * slots);
+  for (uint32_t t = 0; t < 16; ++t)
+    for (uint32_t e = 0; e < slots; ++e) {
+      // The pruned search restricted to one candidate: its exact squared error.
+      const double exact = mse.encode_frozen_among(g.mat.texel(100 + t).data(), {e}, -1e300).dissimilarity * double(values);
+      const size_t k = t * slots + e;
+      CHECK(exact >= error[k] - margin[k]);
+      CHECK(exact <= error[k] + margin[k]);
+    }
+
+  std::vector<float> texels;
+  for (uint32_t t = 0; t < 24; ++t) {
+    const auto x = g.mat.texel(t * 5 % 144);
+    texels.insert(texels.end(), x.begin(), x.end());
+  }
+  std::vector<P6Entry> a(24), b(24);
+  batch.encode(texels.data(), 24, a.data());
+  pruned.encode(texels.data(), 24, b.data());
+  CHECK(batch.stats().settled < batch.stats().scored / 2);  // the brackets spare most exact comparisons
+  for (size_t i = 0; i < 24; ++i) {
+    CHECK(a[i].index == b[i].index);
+    CHECK(a[i].scale == b[i].scale);
+    CHECK(a[i].dissimilarity == b[i].dissimilarity);
+  }
+
+  // HDR chroma is compared unscaled, outside the closed form: the pruned search.
+  Grown h(Dynamic::HDR, 6);
+  Encoder hdr(h.books, Dynamic::HDR, Thresholds::defaults(Metric::MSE), sim);
+  CHECK(FrozenSearch(hdr, SearchPath::BatchedOpenCL, 1).path() == SearchPath::Pruned);
+  // The closed form is no SSIM search, and the SSIM batch has no squared errors.
+  CHECK_THROWS_AS(FrozenSearch(*g.encoder, SearchPath::BatchedMSE, 1), InputError);
+  CHECK_THROWS_AS(FrozenSearch(*g.encoder, SearchPath::BatchedReference, 1).squared_errors(queries, candidates, slots,
+                                                                                          &error, &margin),
+                  InputError);
+  CHECK_THROWS_AS(batch.squared_errors(queries, {0, 1}, slots, &error, &margin), InputError);
+}
+
 TEST_CASE("bad batches are errors") {
   Grown g;
   FrozenSearch cpu(*g.encoder, SearchPath::BatchedReference, 1);
@@ -122,7 +181,7 @@ TEST_CASE("grids the kernel's rows cannot hold use the pruned search; forcing th
   CHECK(FrozenSearch::preferred(AngularGrid{}, SimilaritySettings::defaults()) == SearchPath::BatchedOpenCL);
   SimilaritySettings mse = SimilaritySettings::defaults();
   mse.metric = Metric::MSE;
-  CHECK(FrozenSearch::preferred(AngularGrid{}, mse) == SearchPath::Pruned);
+  CHECK(FrozenSearch::preferred(AngularGrid{}, mse) == SearchPath::BatchedMSE);
 
   SyntheticMaterial mat(4, 4, Dynamic::LDR, wide);
   Codebooks books(mat.grid);

@@ -293,6 +293,7 @@ CompressReport compress_one(Database& db, const MeasuredSample& sample, const st
               {"phase3_composition", {{"texels", r.composed}, {"propose_seconds", r.propose_seconds}, {"adopt_seconds", r.adopt_seconds}}},
               {"search", {{"path", r.search == SearchPath::Pruned          ? "pruned"
                                    : r.search == SearchPath::BatchedOpenCL ? "batched-opencl"
+                                   : r.search == SearchPath::BatchedMSE    ? "batched-mse"
                                                                            : "batched-reference"},
                           {"scored", r.search_stats.scored},
                           {"settled", r.search_stats.settled},

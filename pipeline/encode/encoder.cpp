@@ -764,7 +764,9 @@ Encoder::Match Encoder::search_composite_in(const Query& q, int level, const std
   if (order.empty()) return best;
   std::vector<PlaneRef> planes;  // of the pivots
   // LAESA (MSE only): angles of the query to the pivots bound every candidate's residual from below.
-  const bool laesa = level == 4 && settings_.metric == Metric::MSE && settings_.pruning && !pivots_.empty();
+  // Each pivot's angle costs one whole comparison: not worth it for a few candidates (a settled batch).
+  const bool laesa = level == 4 && settings_.metric == Metric::MSE && settings_.pruning && !pivots_.empty() &&
+                     order.size() > pivots_.size();
   double qnorm2 = 0;
   std::vector<double> qangle;
   if (laesa) {

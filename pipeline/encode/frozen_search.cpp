@@ -15,6 +15,11 @@ namespace {
 // Half-width of the rounding margin around a bin's edges: the kernel, its reference and the exact
 // comparison sum the same float products in different orders (differences are ~1e-5 in SSIM).
 constexpr double kMargin = 5e-4;
+// BatchedMSE's rounding margin: the numerators are float sums (16 lanes, then double per plane) of values
+// in 8-bit units, ~1e-6 relative to <x, x> + s^2 <y, y> (Cauchy-Schwarz bounds 2 s <x, y> by it);
+// the exact search adds float differences. 1e-4 of it is two orders above both and still settles
+// about one candidate per texel (docs/encoder.md "Phase 3 search paths").
+constexpr double kRelativeMargin = 1e-4;
 // kernels/search.cl's histogram and its private row buffer.
 constexpr int kBins = 512, kMaxRows = 30, kLanes = 16, kMaxPlanes = 256;
 // Launches of at most kChunk texels bound the padded queries and the scratch values (~1 MB per texel).
@@ -150,15 +155,20 @@ SearchPath FrozenSearch::preferred(const AngularGrid& g, const SimilaritySetting
   // Measured in BENCHMARKS.md "Phase 3 search paths": the vectorized kernel on PoCL is faster than
   // the pruned search on the CPU; without OpenCL (or for planes the kernel's rows cannot hold) the
   // pruned search is the fastest path.
-  if (s.metric == Metric::SSIM && kernel_fits(g, s.window_radius) && ComputeDevice::get().uses_opencl())
-    return SearchPath::BatchedOpenCL;
+  // Under MSE the closed form needs no device and is faster than either.
+  if (s.metric == Metric::MSE) return SearchPath::BatchedMSE;
+  if (kernel_fits(g, s.window_radius) && ComputeDevice::get().uses_opencl()) return SearchPath::BatchedOpenCL;
   return SearchPath::Pruned;
 }
 
 FrozenSearch::FrozenSearch(const Encoder& encoder, SearchPath path, int threads)
     : encoder_(encoder), path_(path), threads_(std::max(1, threads)) {
-  // The histogram brackets SSIM percentiles; the MSE metric keeps the pruned (LAESA) search.
-  if (encoder.settings().metric != Metric::SSIM) path_ = SearchPath::Pruned;
+  // The histogram brackets SSIM percentiles: under MSE the batch is the closed form, which holds
+  // the scaled channels only (HDR chroma is compared unscaled: the pruned search).
+  const bool mse = encoder.settings().metric == Metric::MSE;
+  if (!mse && path_ == SearchPath::BatchedMSE) throw InputError("frozen search: the MSE batch under the SSIM metric");
+  if (mse && path_ != SearchPath::Pruned)
+    path_ = encoder.dynamic() == Dynamic::HDR ? SearchPath::Pruned : SearchPath::BatchedMSE;
   if (path_ == SearchPath::Pruned) return;
   const Codebooks& k = encoder.codebooks();
   const AngularGrid& g = k.grid;
@@ -279,17 +289,48 @@ std::vector<float> FrozenSearch::query_block(const FrozenQuery& q) const {
   return block;
 }
 
-std::vector<int> FrozenSearch::bins(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates,
-                                    size_t slots) {
-  if (path_ == SearchPath::Pruned) throw InputError("frozen search: the pruned path has no batch");
-  const size_t texels = queries.size();
-  if (candidates.size() != texels * slots) throw InputError("frozen search: candidates must be texels x slots");
+void FrozenSearch::check_batch(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates,
+                               size_t slots) const {
+  if (candidates.size() != queries.size() * slots) throw InputError("frozen search: candidates must be texels x slots");
   for (uint32_t e : candidates)
-    if (e >= encoder_.codebooks().p4_index.rows()) throw InputError("frozen search: candidate past the end of P4");
+    if (e >= entries_) throw InputError("frozen search: candidate past the end of P4");
   const AngularGrid& g = encoder_.codebooks().grid;
   for (const FrozenQuery& q : queries)
     if (q.texel.size() != 3 * g.samples() || q.stats.size() != 2 * 3 * g.samples())
       throw InputError("frozen search: a query of another grid (use Encoder::frozen_query)");
+}
+
+void FrozenSearch::squared_errors(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates,
+                                  size_t slots, std::vector<double>* error, std::vector<double>* margin) const {
+  if (path_ != SearchPath::BatchedMSE) throw InputError("frozen search: squared errors are the MSE batch's");
+  check_batch(queries, candidates, slots);
+  const std::vector<float> nums = scale_numerators(queries, candidates, slots);
+  const size_t samples = encoder_.codebooks().grid.samples();
+  error->resize(candidates.size());
+  margin->resize(candidates.size());
+  parallel(queries.size(), [&](size_t t) {
+    // <x, x> over the scaled channels (all three in LDR), offsets removed.
+    double xx = 0;
+    for (int c = 0; c < 3; ++c) {
+      const float* v = queries[t].texel.data() + size_t(c) * samples;
+      const double o = search_offset(0, c);
+      for (size_t i = 0; i < samples; ++i) xx += (double(v[i]) - o) * (double(v[i]) - o);
+    }
+    for (size_t k = t * slots; k < (t + 1) * slots; ++k) {
+      const double num = nums[k], den = entry_yy_[candidates[k]];
+      const double s = den > 1e-20 ? std::max(0.0, num / den) : 1.0;
+      (*error)[k] = std::max(0.0, xx - 2 * s * num + s * s * den);
+      (*margin)[k] = kRelativeMargin * (xx + s * s * den) + 1e-9;
+    }
+  });
+}
+
+std::vector<int> FrozenSearch::bins(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates,
+                                    size_t slots) {
+  if (path_ != SearchPath::BatchedOpenCL && path_ != SearchPath::BatchedReference)
+    throw InputError("frozen search: only the SSIM batch has bins");
+  check_batch(queries, candidates, slots);
+  const size_t texels = queries.size();
   std::vector<int> out(texels * slots);
   if (out.empty()) return out;
   const auto t0 = std::chrono::steady_clock::now();
@@ -503,6 +544,7 @@ void FrozenSearch::encode(const float* texels, size_t n, P6Entry* out) {
   // With one or two P4 entries there is nothing to abandon, and the batch's fixed host work per texel
   // (packing its query, settling the winner exactly) costs more than the kernel saves.
   if (path_ == SearchPath::Pruned || encoder_.codebooks().p4_index.rows() < 3) encode_pruned(texels, n, out);
+  else if (path_ == SearchPath::BatchedMSE) encode_batched_mse(texels, n, out);
   else encode_batched(texels, n, out);
   stats_.texels += n;
 }
@@ -512,20 +554,26 @@ void FrozenSearch::encode_pruned(const float* texels, size_t n, P6Entry* out) {
   parallel(n, [&](size_t i) { out[i] = encoder_.encode_frozen(texels + i * values); });
 }
 
-void FrozenSearch::encode_batched(const float* texels, size_t n, P6Entry* out) {
+std::vector<uint32_t> FrozenSearch::gather(const float* texels, size_t n, size_t* slots) {
   const size_t values = 3 * encoder_.codebooks().grid.samples();
-  auto t0 = std::chrono::steady_clock::now();
-  std::vector<FrozenQuery>& queries = queries_;
-  queries.resize(n);
-  parallel(n, [&](size_t i) { encoder_.frozen_query(texels + i * values, queries[i]); });
-  const size_t slots = n ? queries[0].candidates.size() : 0;
+  queries_.resize(n);
+  parallel(n, [&](size_t i) { encoder_.frozen_query(texels + i * values, queries_[i]); });
+  *slots = n ? queries_[0].candidates.size() : 0;
   std::vector<uint32_t> candidates;
-  candidates.reserve(n * slots);
-  for (const auto& q : queries) {
-    if (q.candidates.size() != slots)
+  candidates.reserve(n * *slots);
+  for (const auto& q : queries_) {
+    if (q.candidates.size() != *slots)
       throw InputError("frozen search: texels of one batch have different candidate counts");
     candidates.insert(candidates.end(), q.candidates.begin(), q.candidates.end());
   }
+  return candidates;
+}
+
+void FrozenSearch::encode_batched(const float* texels, size_t n, P6Entry* out) {
+  auto t0 = std::chrono::steady_clock::now();
+  size_t slots;
+  const std::vector<uint32_t> candidates = gather(texels, n, &slots);
+  const std::vector<FrozenQuery>& queries = queries_;
   const std::vector<int> bin = bins(queries, candidates, slots);
   stats_.batch_seconds += seconds_since(t0);
   stats_.scored += n * slots;
@@ -550,6 +598,36 @@ void FrozenSearch::encode_batched(const float* texels, size_t n, P6Entry* out) {
     for (size_t k : keep) pick.push_back(queries[i].candidates[k]);
     settled[i] = pick.size();
     out[i] = encoder_.encode_frozen_among(queries[i], pick, floor);
+  });
+  for (size_t s : settled) stats_.settled += s;
+  stats_.settle_seconds += seconds_since(t0);
+}
+
+void FrozenSearch::encode_batched_mse(const float* texels, size_t n, P6Entry* out) {
+  auto t0 = std::chrono::steady_clock::now();
+  size_t slots;
+  const std::vector<uint32_t> candidates = gather(texels, n, &slots);
+  std::vector<double> error, margin;
+  squared_errors(queries_, candidates, slots, &error, &margin);
+  stats_.batch_seconds += seconds_since(t0);
+  stats_.scored += n * slots;
+
+  t0 = std::chrono::steady_clock::now();
+  std::vector<size_t> settled(n, 0);
+  parallel(n, [&](size_t i) {
+    const size_t at = i * slots;
+    // The best candidate's exact error is at most the lowest upper bound; only candidates whose lower
+    // bound reaches it can win. Scores are "higher is better": minus the squared error.
+    double ceiling = 1e300;
+    for (size_t k = 0; k < slots; ++k) ceiling = std::min(ceiling, error[at + k] + margin[at + k]);
+    std::vector<size_t> keep;
+    for (size_t k = 0; k < slots; ++k)
+      if (error[at + k] - margin[at + k] <= ceiling) keep.push_back(k);
+    std::stable_sort(keep.begin(), keep.end(), [&](size_t a, size_t b) { return error[at + a] < error[at + b]; });
+    std::vector<uint32_t> pick;
+    for (size_t k : keep) pick.push_back(candidates[at + k]);
+    settled[i] = pick.size();
+    out[i] = encoder_.encode_frozen_among(queries_[i], pick, -ceiling);
   });
   for (size_t s : settled) stats_.settled += s;
   stats_.settle_seconds += seconds_since(t0);

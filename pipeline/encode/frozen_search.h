@@ -11,6 +11,12 @@
 //    each completed candidate's score is bracketed by a histogram bin, and the host then settles
 //    exactly the few candidates whose brackets reach the best one. Same chosen entries and scales as
 //    Pruned (the brackets are conservative and the settling is Pruned's own search).
+//  - BatchedMSE (schedule.assign_metric "mse", LDR): no kernel is needed. With the least-squares
+//    scale s = <x, y> / <y, y> (offsets removed, plane factors in y) a candidate's squared error is
+//    <x, x> - 2 s <x, y> + s^2 <y, y>, and the batch already computes every <x, y> (the scale
+//    numerators, grouped by entry) and holds every <y, y>: the error of all candidates is closed
+//    form, bracketed by a rounding margin, and the host settles the few whose brackets reach the
+//    best one with Pruned's exact search. HDR (chroma not scaled) keeps Pruned.
 #include <cstddef>
 #include <memory>
 #include <vector>
@@ -19,7 +25,8 @@
 
 namespace btfvq {
 
-enum class SearchPath { Pruned, BatchedOpenCL, BatchedReference };
+// Stored by number in checkpoints: append only.
+enum class SearchPath { Pruned, BatchedOpenCL, BatchedReference, BatchedMSE };
 
 // What the batched path measured (for reports and benchmarks).
 struct SearchStats {
@@ -34,7 +41,9 @@ class FrozenSearch {
  public:
   // `encoder` must outlive the search and its code-books must not grow meanwhile (phase 3), but
   // for P4 entries taken in by sync().
-  // BatchedOpenCL throws DeviceError unless OpenCL is in use and kernel_fits() the grid.
+  // BatchedOpenCL throws DeviceError unless OpenCL is in use and kernel_fits() the grid. Under the
+  // MSE metric every batched path is BatchedMSE (HDR: Pruned), and BatchedMSE under SSIM is an
+  // InputError.
   FrozenSearch(const Encoder& encoder, SearchPath path, int threads);
   ~FrozenSearch();
   FrozenSearch(const FrozenSearch&) = delete;
@@ -55,6 +64,11 @@ class FrozenSearch {
   // Encodes n texels (3 x grid.samples() coding-space floats each, contiguous) into out[0..n).
   void encode(const float* texels, size_t n, P6Entry* out);
 
+  // Under MSE (BatchedMSE): every (texel, candidate) pair's squared error from the closed form and
+  // the margin that bounds its rounding: the exact error lies in [error - margin, error + margin].
+  void squared_errors(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates, size_t slots,
+                      std::vector<double>* error, std::vector<double>* margin) const;
+
   // What the batch computes for every (texel, candidate) pair, candidates of a texel in the given
   // order (for tests): bins[t * slots + k] for candidates[t * slots + k] is the histogram bin of its
   // score, or -1 if it was abandoned (its score fell below a previous candidate's lower bound).
@@ -68,6 +82,10 @@ class FrozenSearch {
   struct Device;
   void encode_pruned(const float* texels, size_t n, P6Entry* out);
   void encode_batched(const float* texels, size_t n, P6Entry* out);
+  void encode_batched_mse(const float* texels, size_t n, P6Entry* out);
+  // The frozen queries of n texels into queries_, and their candidates (slots per texel).
+  std::vector<uint32_t> gather(const float* texels, size_t n, size_t* slots);
+  void check_batch(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates, size_t slots) const;
   std::vector<float> scale_numerators(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates,
                                       size_t slots) const;
   void bins_reference(const std::vector<FrozenQuery>& queries, const std::vector<uint32_t>& candidates, size_t slots,

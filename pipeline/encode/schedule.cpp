@@ -22,10 +22,7 @@ ScheduleSettings ScheduleSettings::from(const ParameterDictionary& d) {
   s.tile_texels = d.integer("schedule.tile_texels", 1, 1 << 16);
   s.threads = d.integer("schedule.threads", 1, 256);
   s.search = d.string("schedule.search");
-  const std::string assign = d.string("schedule.assign_metric");
-  if (assign == "mse") s.assign_metric = Metric::MSE;
-  else if (assign == "ssim") s.assign_metric = Metric::SSIM;
-  else throw ConfigError(d.origin() + ": 'schedule.assign_metric' = '" + assign + "' must be \"mse\" or \"ssim\"");
+  s.assign_metric = metric_from(d, "schedule.assign_metric");
   s.assign_thresholds = Thresholds::from(d, s.assign_metric);
   s.compose_threshold = d.number("schedule.compose_threshold", 0.0, 1e6);
   s.compose_gain = d.number("schedule.compose_gain", 0.0, 1e6);

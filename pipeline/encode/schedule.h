@@ -29,7 +29,8 @@ struct ScheduleSettings {
   int threads = 0;  // phase 3 workers
   // Phase 3 search: "auto" (the fastest: the batched kernel on OpenCL, else pruned), "pruned",
   // "batched" (OpenCL, or its C++ reference without OpenCL), "batched-reference" (the kernel's C++
-  // reference even on OpenCL: for comparisons). All give the same entries.
+  // reference even on OpenCL: for comparisons). All give the same entries. Under assign_metric
+  // "mse" every value but "pruned" is the closed-form batch (FrozenSearch, BatchedMSE).
   std::string search;
   // The similarity by which the refinement's assignment and phase 3 choose a texel's P4 entry and
   // judge a composition (the growing phases keep similarity.metric): MSE by default. The SSIM

@@ -12,12 +12,16 @@
 
 namespace btfvq {
 
+Metric metric_from(const ParameterDictionary& d, const std::string& key) {
+  const std::string metric = d.string(key);
+  if (metric == "ssim") return Metric::SSIM;
+  if (metric == "mse") return Metric::MSE;
+  throw ConfigError(d.origin() + ": '" + key + "' = '" + metric + "' must be \"ssim\" or \"mse\"");
+}
+
 SimilaritySettings SimilaritySettings::from(const ParameterDictionary& d) {
   SimilaritySettings s;
-  const std::string metric = d.string("similarity.metric");
-  if (metric == "ssim") s.metric = Metric::SSIM;
-  else if (metric == "mse") s.metric = Metric::MSE;
-  else throw ConfigError(d.origin() + ": 'similarity.metric' = '" + metric + "' must be \"ssim\" or \"mse\"");
+  s.metric = metric_from(d, "similarity.metric");
   s.outlier_fraction = d.number("similarity.outlier_fraction", 0.0, 0.5);
   s.k1 = d.number("similarity.k1", 1e-6, 1.0);
   s.k2 = d.number("similarity.k2", 1e-6, 1.0);

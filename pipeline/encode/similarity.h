@@ -16,6 +16,7 @@
 // and stops as soon as more than r values fall below the best score found so far.
 #include <cstddef>
 #include <cstdint>
+#include <string>
 #include <vector>
 
 #include "pipeline/btf.h"
@@ -24,6 +25,9 @@
 namespace btfvq {
 
 enum class Metric { SSIM, MSE };
+
+// The metric named by `key` ("ssim" or "mse"; anything else is a ConfigError naming the key).
+Metric metric_from(const ParameterDictionary& d, const std::string& key);
 
 // The "similarity" section of configs/pipeline.json, the one source of its values: the members
 // carry none (a default-constructed struct is all zero), defaults() reads the shipped file.
