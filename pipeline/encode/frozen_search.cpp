@@ -18,7 +18,7 @@ constexpr double kMargin = 5e-4;
 // BatchedMSE's rounding margin: the numerators are float sums (16 lanes, then double per plane) of values
 // in 8-bit units, ~1e-6 relative to <x, x> + s^2 <y, y> (Cauchy-Schwarz bounds 2 s <x, y> by it);
 // the exact search adds float differences. 1e-4 of it is two orders above both and still settles
-// about one candidate per texel (docs/encoder.md "Phase 3 search paths").
+// about one candidate per texel (docs/similarity.md "Under MSE: the closed form").
 constexpr double kRelativeMargin = 1e-4;
 // kernels/search.cl's histogram and its private row buffer.
 constexpr int kBins = 512, kMaxRows = 30, kLanes = 16, kMaxPlanes = 256;
