@@ -145,19 +145,19 @@ ScheduleResult run_schedule(Codebooks& books, Dynamic dyn, int width, int height
     e->set_threads(size_t(schedule.threads));
     return e;
   };
-  // The refinement and phase 3 choose entries by schedule.assign_metric, with its thresholds as the
-  // growing phases ended them.
+  // The refinement and phase 3 choose entries by schedule.assign_metric with its thresholds
+  // (schedule.assign_thresholds, relaxed as phase 2's): always an encoder of their own, so that an
+  // uninterrupted run and a resumed one assign with the same one whatever the metrics.
   SimilaritySettings assign_similarity = similarity;
   assign_similarity.metric = schedule.assign_metric;
-  const Thresholds& assign_base = schedule.assign_metric == similarity.metric ? thresholds : schedule.assign_thresholds;
-  const Thresholds assign_thresholds = n2 > 0 ? assign_base.relaxed(schedule.relax_factor) : assign_base;
+  const Thresholds assign_thresholds =
+      n2 > 0 ? schedule.assign_thresholds.relaxed(schedule.relax_factor) : schedule.assign_thresholds;
   auto make_assigner = [&] { return make_encoder(assign_thresholds, assign_similarity); };
   auto encoder = resume ? make_assigner() : make_encoder(thresholds, similarity);
   bool assigning = resume != nullptr;
   auto start_assigning = [&] {
     if (assigning) return;
     assigning = true;
-    if (schedule.assign_metric == similarity.metric) return;  // the growing encoder is the assigner
     grown.add(encoder->stats());
     encoder = make_assigner();
   };
