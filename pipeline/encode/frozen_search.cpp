@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 
 #include <btfvq/error.h>
 #include "pipeline/runtime/opencl_runtime.h"
@@ -136,6 +137,26 @@ void search_reference(const ReferenceInputs& in, const float* query, const float
     }
     floor = std::max(floor, bin <= 0 ? -1e30f : float(bin) / float(kBins) - float(kMargin));
   }
+}
+
+// The bracket of a candidate the batch abandoned: below every completed one's.
+constexpr double kAbandoned = -std::numeric_limits<double>::infinity();
+
+// A texel's search settled exactly, as both batched paths end: of its candidates (slots, with score
+// brackets [lower, upper]) only those whose bracket reaches the best lower bound can win; the pruned
+// search runs among them, likeliest first, with that bound as its floor, so it picks what it would
+// have picked among all of them.
+P6Entry settle(const Encoder& encoder, const FrozenQuery& q, const uint32_t* candidates, const double* lower,
+               const double* upper, size_t slots, size_t* settled) {
+  const double floor = *std::max_element(lower, lower + slots);
+  std::vector<size_t> keep;
+  for (size_t k = 0; k < slots; ++k)
+    if (upper[k] > kAbandoned && upper[k] >= floor) keep.push_back(k);
+  std::stable_sort(keep.begin(), keep.end(), [&](size_t a, size_t b) { return lower[a] > lower[b]; });
+  std::vector<uint32_t> pick;
+  for (size_t k : keep) pick.push_back(candidates[k]);
+  *settled = pick.size();
+  return encoder.encode_frozen_among(q, pick, floor);
 }
 
 }  // namespace
@@ -578,26 +599,16 @@ void FrozenSearch::encode_batched(const float* texels, size_t n, P6Entry* out) {
   stats_.batch_seconds += seconds_since(t0);
   stats_.scored += n * slots;
 
+  // Score brackets: a completed candidate's bin; an abandoned one scored below a completed one's
+  // lower bound, so it cannot win.
+  std::vector<double> lower(n * slots, kAbandoned), upper(n * slots, kAbandoned);
+  for (size_t k = 0; k < n * slots; ++k)
+    if (bin[k] >= 0) bracket(bin[k], &lower[k], &upper[k]);
   t0 = std::chrono::steady_clock::now();
   std::vector<size_t> settled(n, 0);
   parallel(n, [&](size_t i) {
-    std::vector<double> lower(slots), upper(slots);
-    double floor = -1e300;
-    for (size_t k = 0; k < slots; ++k) {
-      if (bin[i * slots + k] < 0) continue;
-      bracket(bin[i * slots + k], &lower[k], &upper[k]);
-      floor = std::max(floor, lower[k]);
-    }
-    // Only completed candidates whose bracket reaches the best lower bound can win (an abandoned one
-    // scored below a completed one's lower bound); try the likeliest first.
-    std::vector<size_t> keep;
-    for (size_t k = 0; k < slots; ++k)
-      if (bin[i * slots + k] >= 0 && upper[k] >= floor) keep.push_back(k);
-    std::stable_sort(keep.begin(), keep.end(), [&](size_t a, size_t b) { return lower[a] > lower[b]; });
-    std::vector<uint32_t> pick;
-    for (size_t k : keep) pick.push_back(queries[i].candidates[k]);
-    settled[i] = pick.size();
-    out[i] = encoder_.encode_frozen_among(queries[i], pick, floor);
+    const size_t at = i * slots;
+    out[i] = settle(encoder_, queries[i], candidates.data() + at, lower.data() + at, upper.data() + at, slots, &settled[i]);
   });
   for (size_t s : settled) stats_.settled += s;
   stats_.settle_seconds += seconds_since(t0);
@@ -612,22 +623,14 @@ void FrozenSearch::encode_batched_mse(const float* texels, size_t n, P6Entry* ou
   stats_.batch_seconds += seconds_since(t0);
   stats_.scored += n * slots;
 
+  // Scores are "higher is better": minus the squared error.
+  std::vector<double> lower(n * slots), upper(n * slots);
+  for (size_t k = 0; k < n * slots; ++k) lower[k] = -(error[k] + margin[k]), upper[k] = -(error[k] - margin[k]);
   t0 = std::chrono::steady_clock::now();
   std::vector<size_t> settled(n, 0);
   parallel(n, [&](size_t i) {
     const size_t at = i * slots;
-    // The best candidate's exact error is at most the lowest upper bound; only candidates whose lower
-    // bound reaches it can win. Scores are "higher is better": minus the squared error.
-    double ceiling = 1e300;
-    for (size_t k = 0; k < slots; ++k) ceiling = std::min(ceiling, error[at + k] + margin[at + k]);
-    std::vector<size_t> keep;
-    for (size_t k = 0; k < slots; ++k)
-      if (error[at + k] - margin[at + k] <= ceiling) keep.push_back(k);
-    std::stable_sort(keep.begin(), keep.end(), [&](size_t a, size_t b) { return error[at + a] < error[at + b]; });
-    std::vector<uint32_t> pick;
-    for (size_t k : keep) pick.push_back(candidates[at + k]);
-    settled[i] = pick.size();
-    out[i] = encoder_.encode_frozen_among(queries_[i], pick, -ceiling);
+    out[i] = settle(encoder_, queries_[i], candidates.data() + at, lower.data() + at, upper.data() + at, slots, &settled[i]);
   });
   for (size_t s : settled) stats_.settled += s;
   stats_.settle_seconds += seconds_since(t0);
